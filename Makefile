@@ -1,0 +1,35 @@
+# One entry point for people and CI. `make demo` and `make test` install first.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup test test-all demo bench lint clean
+
+setup: $(STAMP)
+
+# The CPU build of torch goes in first so that the project's torch range is already met
+# and pip never reaches for a multi-GB CUDA build.
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+test: setup
+	$(PY) -m pytest -q
+
+test-all: setup
+	$(PY) -m pytest -q -m ''
+
+demo: setup
+	$(VENV)/bin/col demo
+
+bench: setup
+	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+lint: setup
+	$(PY) -m ruff check companion sitl tests bench
+
+clean:
+	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -1,0 +1,110 @@
+"""Typed configuration of the simulated vehicle (the ``[sitl]`` tables of a config file).
+
+Defaults are the paper's setting; ``configs/default.toml`` mirrors them (a test checks).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from companion.configio import Section, build, read_toml, section
+from companion.errors import ConfigError
+
+KNOWN_TOP_LEVEL = {"sitl", "companion", "experiment"}
+
+
+class ClockConfig(Section):
+    """How simulation time relates to wall time."""
+
+    mode: Literal["realtime", "lockstep"] = "realtime"
+    speed: float = Field(1.0, gt=0, le=1000, description="realtime: sim seconds per wall second")
+    fdm_rate_hz: float = Field(126.0, ge=60, le=1000, description="JSBSim step rate")
+    frame_rate_hz: float = Field(10.5, gt=0, le=100, description="agent/camera frame rate")
+    lockstep_timeout_s: float = Field(
+        0.25, gt=0, le=10, description="lockstep: wall time to wait for an answer before advancing"
+    )
+
+
+class NetworkConfig(Section):
+    """Where the vehicle talks MAVLink and serves its camera and control surface."""
+
+    host: str = "127.0.0.1"
+    udp_local_ports: tuple[int, ...] = (14580, 18570)
+    udp_remote_ports: tuple[int, ...] = (14540, 14550)
+    tcp_port: int | None = Field(5760, ge=0, le=65535)
+    camera_port: int = Field(5600, ge=0, le=65535)
+    control_port: int = Field(14600, ge=0, le=65535)
+    system_id: int = Field(1, ge=1, le=255)
+
+    @model_validator(mode="after")
+    def _pairs(self) -> NetworkConfig:
+        if len(self.udp_local_ports) != len(self.udp_remote_ports):
+            raise ValueError("udp_local_ports and udp_remote_ports must pair up one to one")
+        return self
+
+
+class AutopilotConfig(Section):
+    """Limits, gains and failsafes of the flight stack (also exposed as MAVLink parameters)."""
+
+    max_speed_xy_m_s: float = Field(5.0, gt=0)
+    max_speed_up_m_s: float = Field(3.0, gt=0)
+    max_speed_down_m_s: float = Field(2.0, gt=0)
+    max_tilt_rad: float = Field(0.6, gt=0, lt=1.2)
+    max_yaw_rate_rad_s: float = Field(1.5, gt=0)
+    land_speed_m_s: float = Field(0.7, gt=0)
+    takeoff_alt_m: float = Field(2.5, gt=0)
+    offboard_loss_hold_s: float = Field(0.5, gt=0, description="no setpoint for this long -> hold")
+    offboard_loss_land_s: float = Field(5.0, gt=0, description="then after this much more -> land")
+
+
+class WorldConfig(Section):
+    """The landing pad on its ground vehicle, and how episodes start."""
+
+    pad_radius_m: float = Field(0.5, gt=0)
+    success_radius_m: float = Field(0.5, gt=0)
+    vehicle_length_m: float = Field(4.0, gt=0)
+    vehicle_width_m: float = Field(2.0, gt=0)
+    vehicle_height_m: float = Field(1.5, ge=0)
+    vehicle_velocity_ne_m_s: tuple[float, float] = (0.0, 0.0)
+    start_height_above_pad_m: float = Field(8.0, gt=0)
+    start_xy_range_m: float = Field(3.0, ge=0, description="start x,y uniform in +-range")
+    seed: int = 0
+
+
+class CameraConfig(Section):
+    """The downward camera: pinhole, body-fixed, looking down."""
+
+    enabled: bool = True
+    width_px: int = Field(320, ge=16, le=4096)
+    height_px: int = Field(240, ge=16, le=4096)
+    hfov_deg: float = Field(90.0, gt=10, lt=170)
+    encoding: Literal["raw", "jpeg"] = "raw"
+
+
+class SitlConfig(Section):
+    clock: ClockConfig = ClockConfig()
+    network: NetworkConfig = NetworkConfig()
+    autopilot: AutopilotConfig = AutopilotConfig()
+    world: WorldConfig = WorldConfig()
+    camera: CameraConfig = CameraConfig()
+
+
+def check_top_level(data: dict, source: str) -> None:
+    unknown = set(data) - KNOWN_TOP_LEVEL
+    if unknown:
+        raise ConfigError(
+            f"{source}: unknown top-level table(s) {sorted(unknown)}; expected some of "
+            f"{sorted(KNOWN_TOP_LEVEL)}"
+        )
+
+
+def load_sitl_config(path: str | Path | None = None) -> SitlConfig:
+    """The ``[sitl]`` part of a config file, or the embedded defaults when ``path`` is None."""
+    if path is None:
+        return SitlConfig()
+    data = read_toml(path)
+    check_top_level(data, str(path))
+    return build(SitlConfig, section(data, "sitl"), f"[sitl] in {path}")

@@ -1,0 +1,91 @@
+"""The task's world: a landing pad on the roof of a ground vehicle, episode starts, judging.
+
+Pure geometry with no I/O, shared by the dynamics (terrain under the vehicle), the camera
+(what to draw) and the vehicle server (ground truth). The ground vehicle is a box centred at
+``position_ne(t)`` with its long side along north; the pad is a disc centred on its roof.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sitl.config import WorldConfig
+
+
+@dataclass(frozen=True)
+class Touchdown:
+    """Where and how the multirotor met a surface, judged against the pad."""
+
+    ned: tuple[float, float, float]
+    speed_m_s: float
+    distance_to_pad_m: float
+    on_pad: bool
+    success: bool
+    time_s: float
+
+
+class World:
+    """Ground vehicle and pad kinematics; constant velocity from ``t0_s`` (the last reset)."""
+
+    def __init__(self, cfg: WorldConfig) -> None:
+        self.cfg = cfg
+        self.velocity_ne = np.asarray(cfg.vehicle_velocity_ne_m_s, dtype=float)
+        self.origin_ne = np.zeros(2)
+        self.t0_s = 0.0
+
+    def restart(self, t_s: float) -> None:
+        """Put the ground vehicle back at the origin at time ``t_s``."""
+        self.origin_ne = np.zeros(2)
+        self.t0_s = t_s
+
+    def set_velocity(self, velocity_ne_m_s: tuple[float, float], t_s: float) -> None:
+        """Change the ground vehicle's velocity from now on, keeping its position continuous."""
+        self.origin_ne = self.position_ne(t_s)
+        self.t0_s = t_s
+        self.velocity_ne = np.asarray(velocity_ne_m_s, dtype=float)
+
+    def position_ne(self, t_s: float) -> np.ndarray:
+        return self.origin_ne + self.velocity_ne * (t_s - self.t0_s)
+
+    @property
+    def roof_height_m(self) -> float:
+        return self.cfg.vehicle_height_m
+
+    def pad_ned(self, t_s: float) -> np.ndarray:
+        """Pad centre in NED (z is negative: the roof is above the ground)."""
+        n, e = self.position_ne(t_s)
+        return np.array([n, e, -self.cfg.vehicle_height_m])
+
+    def over_roof(self, north_m: float, east_m: float, t_s: float) -> bool:
+        n, e = self.position_ne(t_s)
+        return (
+            abs(north_m - n) <= self.cfg.vehicle_length_m / 2
+            and abs(east_m - e) <= self.cfg.vehicle_width_m / 2
+        )
+
+    def surface_height_m(self, north_m: float, east_m: float, t_s: float) -> float:
+        """Height above ground of whatever is below (roof or ground)."""
+        return self.cfg.vehicle_height_m if self.over_roof(north_m, east_m, t_s) else 0.0
+
+    def episode_start(self, rng: np.random.Generator, t_s: float) -> np.ndarray:
+        """A random x,y within +-start_xy_range_m of the pad, at the fixed start height."""
+        pad = self.pad_ned(t_s)
+        r = self.cfg.start_xy_range_m
+        dn, de = rng.uniform(-r, r, size=2)
+        return np.array([pad[0] + dn, pad[1] + de, pad[2] - self.cfg.start_height_above_pad_m])
+
+    def judge(self, ned: np.ndarray, speed_m_s: float, t_s: float) -> Touchdown:
+        """Touchdown at ``ned``: on the pad's roof within success_radius_m is a success."""
+        pad = self.pad_ned(t_s)
+        dist = float(np.hypot(ned[0] - pad[0], ned[1] - pad[1]))
+        on_roof = self.over_roof(float(ned[0]), float(ned[1]), t_s) and ned[2] < -0.5 * self.roof_height_m
+        return Touchdown(
+            ned=(float(ned[0]), float(ned[1]), float(ned[2])),
+            speed_m_s=float(speed_m_s),
+            distance_to_pad_m=dist,
+            on_pad=bool(on_roof and dist <= self.cfg.pad_radius_m),
+            success=bool(on_roof and dist <= self.cfg.success_radius_m),
+            time_s=t_s,
+        )
