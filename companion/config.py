@@ -7,8 +7,9 @@ Each section belongs to the module named in its docstring.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, PositiveInt
 
 from companion.configio import Section, build, read_toml, section
 from companion.errors import ConfigError
@@ -62,16 +63,23 @@ class PerceptionConfig(Section):
 
 
 class LearnerConfig(Section):
-    """companion.learner: the paper's Update-Policy procedure."""
+    """companion.learner: the paper's Update-Policy procedure (companion/learner.py)."""
 
-    hidden: tuple[int, ...] = (130, 72, 40)
-    init_std: float = Field(0.1, gt=0)
+    hidden: tuple[PositiveInt, ...] = Field((130, 72, 40), min_length=1)
+    init_std: float = Field(0.1, gt=0, description="std of the normal weight init; biases start at 0")
     learning_rate: float = Field(1e-4, gt=0)
     batch_size: int = Field(64, gt=0)
     loss_threshold: float = Field(0.005, gt=0)
-    max_updates: int = Field(2000, gt=0)
+    max_updates: int = Field(2000, gt=0, description="updates per round; a round restarts on new samples")
     torch_threads: int = Field(1, ge=1)
     seed: int = 0
+    mode: Literal["thread", "budgeted"] = Field(
+        "thread", description="thread: live, as fast as the CPU allows; budgeted: reproducible"
+    )
+    updates_per_step: int = Field(50, ge=1, description="budgeted mode: updates per control step")
+    publish_every_updates: int = Field(
+        8, ge=1, description="publish a snapshot at least this often (and after any new data)"
+    )
 
 
 class CompanionConfig(Section):
