@@ -1,0 +1,224 @@
+"""Joystick commands and their mapping to body-frame velocity setpoints.
+
+A :class:`JoystickCommand` is what people and policies produce and what the dataset records
+(order roll, pitch, yaw, throttle, each in [-1, 1]). :class:`CommandMapper` turns it into a
+:class:`~companion.setpoints.VelocitySetpoint` in small steps ending in a clip:
+deadband -> expo -> scale -> clip. Inputs from misbehaving sources go through
+:func:`sanitize` first, so nothing non-finite or out of range ever reaches the vehicle.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from companion.config import CommandsConfig
+from companion.setpoints import VelocitySetpoint
+
+log = logging.getLogger(__name__)
+
+AXES = ("roll", "pitch", "yaw", "throttle")
+"""The order of a command as an array: the policy's output and the dataset's action columns."""
+
+
+@dataclass(frozen=True)
+class JoystickCommand:
+    """Stick positions in [-1, 1]: roll +1 = move right, pitch +1 = forward,
+    yaw +1 = turn clockwise, throttle +1 = climb."""
+
+    roll: float
+    pitch: float
+    yaw: float
+    throttle: float
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not _is_real(value):
+                raise TypeError(f"JoystickCommand.{f.name} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(
+                    f"JoystickCommand.{f.name} is {value}; "
+                    "pass untrusted values through commands.sanitize()"
+                )
+            if not -1.0 <= value <= 1.0:
+                raise ValueError(
+                    f"JoystickCommand.{f.name} must be in [-1, 1], got {value!r}; "
+                    "pass untrusted values through commands.sanitize()"
+                )
+            object.__setattr__(self, f.name, float(value))
+
+    @classmethod
+    def neutral(cls) -> JoystickCommand:
+        """Sticks centred: hover in place (throttle 0 = hold altitude)."""
+        return cls(0.0, 0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_array(cls, values: Sequence[float] | np.ndarray) -> JoystickCommand:
+        """Strict construction from four values in :data:`AXES` order (raises on bad values)."""
+        arr = _as_four(values)
+        return cls(*(float(v) for v in arr))
+
+    def to_array(self) -> np.ndarray:
+        """The four values in :data:`AXES` order as float64."""
+        return np.array([self.roll, self.pitch, self.yaw, self.throttle], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class SanitizeIssues:
+    """What :func:`sanitize` had to repair in one input, per kind (number of axes)."""
+
+    non_finite: int = 0
+    clamped: int = 0
+
+    @property
+    def any(self) -> bool:
+        return self.non_finite > 0 or self.clamped > 0
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _as_four(values: Sequence[float] | np.ndarray) -> np.ndarray:
+    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    if arr.shape != (4,):
+        raise ValueError(
+            f"a joystick command has 4 values ({', '.join(AXES)}), got {arr.size}; "
+            "check the policy's output size"
+        )
+    return arr
+
+
+def sanitize(values: Sequence[float] | np.ndarray) -> tuple[JoystickCommand, SanitizeIssues]:
+    """Repair untrusted stick values: non-finite -> 0 (neutral), out of range -> clamped.
+
+    For inputs from policies and pilots that may misbehave; the issues say what was repaired
+    so that callers can count and log it. A wrong number of values is a programming error
+    and raises ValueError.
+    """
+    arr = _as_four(values)
+    finite = np.isfinite(arr)
+    arr = np.where(finite, arr, 0.0)
+    clipped = np.clip(arr, -1.0, 1.0)
+    issues = SanitizeIssues(
+        non_finite=int(np.count_nonzero(~finite)),
+        clamped=int(np.count_nonzero(clipped != arr)),
+    )
+    return JoystickCommand.from_array(clipped), issues
+
+
+# --- the transforms, each on an array of stick values ------------------------------------
+
+
+def deadband(x: np.ndarray, width: float) -> np.ndarray:
+    """Zero inside +-width; outside, rescaled so the output is continuous and +-1 stays +-1."""
+    if not 0.0 <= width < 1.0:
+        raise ValueError(f"deadband width must be in [0, 1), got {width}")
+    x = np.asarray(x, dtype=np.float64)
+    magnitude = np.maximum(np.abs(x) - width, 0.0) / (1.0 - width)
+    return np.sign(x) * magnitude
+
+
+def expo(x: np.ndarray, amount: float) -> np.ndarray:
+    """RC-style expo: (1 - a) x + a x^3, finer control near centre, same end points."""
+    if not 0.0 <= amount <= 1.0:
+        raise ValueError(f"expo must be in [0, 1], got {amount}")
+    x = np.asarray(x, dtype=np.float64)
+    return (1.0 - amount) * x + amount * x**3
+
+
+def scale(x: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """Stick fraction times the physical limit of each axis."""
+    return np.asarray(x, dtype=np.float64) * np.asarray(limits, dtype=np.float64)
+
+
+def clip(x: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, int]:
+    """Clip each axis to +-limit; non-finite becomes 0. Returns the values and how many changed."""
+    x = np.asarray(x, dtype=np.float64)
+    limits = np.asarray(limits, dtype=np.float64)
+    finite = np.isfinite(x)
+    safe = np.where(finite, x, 0.0)
+    out = np.clip(safe, -limits, limits)
+    return out, int(np.count_nonzero(~finite) + np.count_nonzero(out != safe))
+
+
+# --- the mapper ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MapperCounts:
+    """Running totals of a :class:`CommandMapper` (numbers of commands and of axes repaired)."""
+
+    commands: int = 0
+    non_finite_axes: int = 0
+    clamped_axes: int = 0
+    clipped_axes: int = 0
+
+
+class CommandMapper:
+    """JoystickCommand -> body-frame VelocitySetpoint per DESIGN.md's conventions.
+
+    forward = pitch * v_xy_max, right = roll * v_xy_max, down = -throttle * v_z_max,
+    yaw rate = yaw * r_max, after deadband and expo. Repairs are counted and logged
+    (the first one, then every ``log_every``-th) so that a misbehaving source is visible.
+    """
+
+    def __init__(self, cfg: CommandsConfig, log_every: int = 100) -> None:
+        self.cfg = cfg
+        self._log_every = max(1, log_every)
+        # Physical limit per axis in AXES order: roll->right, pitch->forward, yaw, throttle->up.
+        self._limits = np.array(
+            [cfg.v_xy_max_m_s, cfg.v_xy_max_m_s, cfg.yaw_rate_max_rad_s, cfg.v_z_max_m_s]
+        )
+        self._counts = MapperCounts()
+        self._repairs_logged = 0
+
+    @property
+    def counts(self) -> MapperCounts:
+        return self._counts
+
+    def to_setpoint(self, cmd: JoystickCommand) -> VelocitySetpoint:
+        """Map a valid command; the final clip guarantees the limits whatever the shaping."""
+        shaped = expo(deadband(cmd.to_array(), self.cfg.deadband), self.cfg.expo)
+        physical, clipped = clip(scale(shaped, self._limits), self._limits)
+        self._count(MapperCounts(commands=1, clipped_axes=clipped))
+        right, forward, yaw_rate, up = (float(v) for v in physical)
+        down = 0.0 - up  # not -up: a centred stick gives +0.0, not -0.0
+        return VelocitySetpoint(
+            forward_m_s=forward, right_m_s=right, down_m_s=down, yaw_rate_rad_s=yaw_rate
+        )
+
+    def from_values(self, values: Sequence[float] | np.ndarray) -> VelocitySetpoint:
+        """Map untrusted values (a policy's raw output): sanitize, count, then map."""
+        cmd, issues = sanitize(values)
+        if issues.any:
+            self._count(
+                MapperCounts(non_finite_axes=issues.non_finite, clamped_axes=issues.clamped)
+            )
+            self._log_repair(values, issues)
+        return self.to_setpoint(cmd)
+
+    def _count(self, delta: MapperCounts) -> None:
+        c = self._counts
+        self._counts = MapperCounts(
+            commands=c.commands + delta.commands,
+            non_finite_axes=c.non_finite_axes + delta.non_finite_axes,
+            clamped_axes=c.clamped_axes + delta.clamped_axes,
+            clipped_axes=c.clipped_axes + delta.clipped_axes,
+        )
+
+    def _log_repair(self, values: object, issues: SanitizeIssues) -> None:
+        if self._repairs_logged % self._log_every == 0:
+            c = self._counts
+            log.warning(
+                "repaired a joystick command %r (%d non-finite -> 0, %d clamped); totals so "
+                "far: %d non-finite, %d clamped axes. Check the policy or input source.",
+                values, issues.non_finite, issues.clamped, c.non_finite_axes, c.clamped_axes,
+            )
+        self._repairs_logged += 1
