@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, PositiveInt
+from pydantic import Field, PositiveInt, model_validator
 
 from companion.configio import Section, build, read_toml, section
 from companion.errors import ConfigError
@@ -54,6 +54,13 @@ class SafetyConfig(Section):
     fence_radius_m: float = Field(30.0, gt=0)
     fence_min_alt_m: float = Field(-1.0, description="below home; -1 allows touching down on the ground")
     fence_max_alt_m: float = Field(25.0, gt=0)
+    max_accel_xy_m_s2: float = Field(
+        0.0, ge=0, description="setpoint rate limit, forward/right; 0 disables"
+    )
+    max_accel_z_m_s2: float = Field(0.0, ge=0, description="setpoint rate limit, down; 0 disables")
+    max_yaw_accel_rad_s2: float = Field(
+        0.0, ge=0, description="setpoint rate limit, yaw rate; 0 disables"
+    )
 
 
 class PerceptionConfig(Section):
@@ -82,6 +89,63 @@ class LearnerConfig(Section):
     )
 
 
+class PilotConfig(Section):
+    """companion.pilot: the scripted expert, the synthetic intervention rule, human inputs."""
+
+    # What the expert knows about the scene, as a person would (pad size, camera view).
+    pad_radius_m: float = Field(0.5, gt=0, description="radius of the landing pad's disc")
+    camera_hfov_deg: float = Field(90.0, gt=10, lt=170, description="horizontal field of view")
+    # The expert's gains, in stick units.
+    xy_gain_per_m: float = Field(0.4, ge=0, description="stick per metre of offset from the pad")
+    xy_damping_per_m_s: float = Field(0.25, ge=0, description="stick per m/s of ground speed")
+    xy_stick_max: float = Field(0.6, gt=0, le=1)
+    descent_stick_fast: float = Field(0.8, ge=0, le=1, description="descent when high")
+    descent_stick_slow: float = Field(0.3, ge=0, le=1, description="descent near touchdown")
+    slow_height_m: float = Field(2.0, gt=0, description="below this height, descend slowly")
+    descent_cone: float = Field(
+        0.25, ge=0, description="descend at full rate while offset <= cone * height"
+    )
+    centre_tolerance_m: float = Field(0.2, ge=0, description="offset that always counts as centred")
+    commit_height_m: float = Field(
+        1.0, ge=0, description="pad lost below this height -> keep landing instead of searching"
+    )
+    search_climb_stick: float = Field(0.3, ge=0, le=1, description="climb while the pad is lost")
+    # Intervention rule of a synthetic operator (take over ... let go).
+    takeover_edge_fraction: float = Field(
+        0.8, gt=0, le=1, description="pad this far towards the image edge (0 centre, 1 edge)"
+    )
+    takeover_descent_m_s: float = Field(1.5, gt=0, description="descending faster than this")
+    takeover_low_height_m: float = Field(2.0, ge=0, description="'low' for the off-centre test")
+    takeover_off_centre_m: float = Field(0.6, gt=0, description="off-centre when low")
+    release_edge_fraction: float = Field(0.5, gt=0, le=1)
+    release_off_centre_m: float = Field(0.3, gt=0)
+    release_hold_s: float = Field(1.0, ge=0, description="back on track this long -> let go")
+    # A ground station's joystick (MAVLink MANUAL_CONTROL).
+    manual_override_button: int = Field(0, ge=0, le=31, description="bit of buttons/buttons2")
+    manual_timeout_s: float = Field(0.5, gt=0, description="older message -> neutral, no override")
+    manual_throttle_range: tuple[int, int] = Field(
+        (0, 1000), description="z from the ground station for throttle -1 and +1 (QGC: 0..1000)"
+    )
+    # A local gamepad (pygame); SDL axis numbers and signs in roll, pitch, yaw, throttle order.
+    gamepad_index: int = Field(0, ge=0)
+    gamepad_axes: tuple[int, int, int, int] = (3, 4, 0, 1)
+    gamepad_invert: tuple[bool, bool, bool, bool] = (False, True, False, True)
+    gamepad_trigger_axis: int = Field(5, ge=-1, description="analog trigger axis; -1 = none")
+    gamepad_trigger_button: int = Field(-1, ge=-1, description="button as trigger; -1 = none")
+    gamepad_trigger_threshold: float = Field(0.5, gt=-1, lt=1)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PilotConfig:
+        lo, hi = self.manual_throttle_range
+        if lo == hi:
+            raise ValueError("manual_throttle_range needs two different values, e.g. [0, 1000]")
+        if self.release_off_centre_m > self.takeover_off_centre_m:
+            raise ValueError("release_off_centre_m must not exceed takeover_off_centre_m")
+        if self.release_edge_fraction > self.takeover_edge_fraction:
+            raise ValueError("release_edge_fraction must not exceed takeover_edge_fraction")
+        return self
+
+
 class CompanionConfig(Section):
     link: LinkConfig = LinkConfig()
     commands: CommandsConfig = CommandsConfig()
@@ -89,6 +153,7 @@ class CompanionConfig(Section):
     safety: SafetyConfig = SafetyConfig()
     perception: PerceptionConfig = PerceptionConfig()
     learner: LearnerConfig = LearnerConfig()
+    pilot: PilotConfig = PilotConfig()
 
 
 def load_companion_config(path: str | Path | None = None) -> CompanionConfig:
