@@ -51,3 +51,7 @@ class CheckpointError(ColError):
 
 class SimulatorError(ColError):
     """The SITL's control surface refused a request or cannot be reached."""
+
+
+class InputDeviceError(ColError):
+    """A human input device (gamepad, joystick) cannot be found or read."""
