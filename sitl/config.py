@@ -71,6 +71,7 @@ class WorldConfig(Section):
     vehicle_velocity_ne_m_s: tuple[float, float] = (0.0, 0.0)
     start_height_above_pad_m: float = Field(8.0, gt=0)
     start_xy_range_m: float = Field(3.0, ge=0, description="start x,y uniform in +-range")
+    spawn_ne_m: tuple[float, float] = (-6.0, 0.0)
     seed: int = 0
 
 
@@ -82,6 +83,12 @@ class CameraConfig(Section):
     height_px: int = Field(240, ge=16, le=4096)
     hfov_deg: float = Field(90.0, gt=10, lt=170)
     encoding: Literal["raw", "jpeg"] = "raw"
+    jpeg_quality: int = Field(90, ge=10, le=100)
+    stream_rate_hz: float = Field(
+        10.5, gt=0, le=100, description="real time: frames per second of sim time (35 for a person's view)"
+    )
+    texture_seed: int = Field(0, description="seed of the procedural ground texture")
+    pad_dot_radius_m: float = Field(0.1, gt=0, description="white centre dot of the pad's marking")
 
 
 class SitlConfig(Section):

@@ -1,0 +1,3 @@
+from sitl.cli import main
+
+main()

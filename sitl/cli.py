@@ -1,0 +1,111 @@
+"""``col-sitl``: run the simulated multirotor behind MAVLink until SIGINT/SIGTERM."""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from companion.errors import ConfigError
+from sitl.config import SitlConfig, load_sitl_config
+
+app = typer.Typer(add_completion=False, help=__doc__)
+
+
+def _parse_udp(pairs: list[str]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    local, remote = [], []
+    for pair in pairs:
+        try:
+            a, b = pair.split(":")
+            local.append(int(a))
+            remote.append(int(b))
+        except ValueError:
+            raise typer.BadParameter(f"--udp takes LOCAL:REMOTE port pairs, got {pair!r}") from None
+    return tuple(local), tuple(remote)
+
+
+def build_config(
+    base: SitlConfig,
+    clock: str | None = None,
+    speed: float | None = None,
+    seed: int | None = None,
+    udp: list[str] | None = None,
+    tcp: int | None = None,
+    camera_port: int | None = None,
+    control_port: int | None = None,
+    no_camera: bool = False,
+) -> SitlConfig:
+    """Apply command-line overrides to a config, re-validating the result."""
+    data = base.model_dump()
+    if clock is not None:
+        data["clock"]["mode"] = clock
+    if speed is not None:
+        data["clock"]["speed"] = speed
+    if seed is not None:
+        data["world"]["seed"] = seed
+    if udp:
+        data["network"]["udp_local_ports"], data["network"]["udp_remote_ports"] = _parse_udp(udp)
+    if tcp is not None:
+        data["network"]["tcp_port"] = None if tcp < 0 else tcp
+    if camera_port is not None:
+        data["network"]["camera_port"] = camera_port
+    if control_port is not None:
+        data["network"]["control_port"] = control_port
+    if no_camera:
+        data["camera"]["enabled"] = False
+    from companion.configio import build
+
+    return build(SitlConfig, data, "command-line options")
+
+
+@app.command()
+def run(
+    config: Annotated[Optional[Path], typer.Option(help="TOML config file ([sitl] tables); default: built-in paper setting")] = None,
+    clock: Annotated[Optional[str], typer.Option(help="realtime or lockstep")] = None,
+    speed: Annotated[Optional[float], typer.Option(help="real-time speed factor (sim s per wall s)")] = None,
+    seed: Annotated[Optional[int], typer.Option(help="seed for episode starts")] = None,
+    udp: Annotated[Optional[list[str]], typer.Option(help="LOCAL:REMOTE UDP port pair (repeatable; 0 = any free local port)")] = None,
+    tcp: Annotated[Optional[int], typer.Option(help="MAVLink TCP server port (0 = any free, -1 = off)")] = None,
+    camera_port: Annotated[Optional[int], typer.Option(help="camera stream TCP port (0 = any free)")] = None,
+    control_port: Annotated[Optional[int], typer.Option(help="control surface TCP port (0 = any free)")] = None,
+    no_camera: Annotated[bool, typer.Option("--no-camera", help="do not render or serve the camera")] = False,
+    duration: Annotated[Optional[float], typer.Option(help="stop after this much simulation time (s)")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
+) -> None:
+    """Start the SITL. Prints one line `READY {json}` with the bound ports once it listens."""
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
+    try:
+        cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    from sitl.server import SitlServer
+
+    try:
+        server = SitlServer(cfg)
+    except OSError as exc:
+        typer.echo(f"error: cannot open the SITL's sockets ({exc}); is another SITL running? choose other ports", err=True)
+        raise typer.Exit(1) from None
+
+    def _stop(signum: int, _frame: object) -> None:
+        server.stop()
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    print("READY " + json.dumps(server.ports()), flush=True)
+    server.serve(max_sim_s=duration)
+    stats = server.stats
+    print(json.dumps({"frames": stats.frames, "answered": stats.answered, "timeouts": stats.timeouts, "sim_s": round(server.vehicle.time_s, 3)}), flush=True)
+
+
+def main() -> None:
+    app(prog_name="col-sitl")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

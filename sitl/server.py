@@ -1,0 +1,480 @@
+"""The SITL process's I/O: MAVLink over UDP and TCP, the camera stream, the control surface,
+and the clock (real time with a speed factor, or lockstep). One thread, one selector.
+
+The frame loop: advance one agent period (``steps_per_frame`` FDM steps), send the frame's
+camera image and telemetry, end with the SYSTEM_TIME marker; in lockstep wait for the answer
+(a setpoint echoing the marker's time_boot_ms, a MANUAL_CONTROL, or an episode reset) or the
+timeout. Until some client answers, a lockstep SITL paces itself in real time so that ground
+stations and MAVSDK can connect; after three unanswered frames it falls back to that pacing.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import selectors
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.config import SitlConfig
+from sitl.control_surface import RequestError, handle_request, parse_request
+from sitl.handler import CameraInfo, MessageHandler
+from sitl.telemetry import COMPOSERS, TelemetryScheduler
+from sitl.vehicle import AUTOPILOT, CAMERA, Outgoing, SimVehicle
+
+log = logging.getLogger("sitl.server")
+M = mavlink
+DETACH_AFTER_TIMEOUTS = 3
+MAX_TCP_BACKLOG_BYTES = 1 << 20
+
+
+class MavClient:
+    """One MAVLink peer (a UDP port pair or a TCP connection) with its own parser."""
+
+    name: str
+
+    def __init__(self) -> None:
+        self.parser = M.MAVLink(None, 0, 0)
+        self.parser.robust_parsing = True
+        self.active = False  # has the peer ever talked to us?
+        self.bad_packets = 0
+
+    def parse(self, data: bytes) -> list[mavlink.MAVLink_message]:
+        try:
+            msgs = self.parser.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - pymavlink raises bare exceptions on garbage
+            self.bad_packets += 1
+            self.parser = M.MAVLink(None, 0, 0)
+            self.parser.robust_parsing = True
+            return []
+        good = [m for m in msgs if m.get_type() != "BAD_DATA"]
+        self.bad_packets += len(msgs) - len(good)
+        return good
+
+    def send(self, data: bytes) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class UdpClient(MavClient):
+    """A local UDP port that sends to a default remote until a peer talks to it (as PX4)."""
+
+    def __init__(self, host: str, local_port: int, remote_port: int) -> None:
+        super().__init__()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+        self.sock.bind((host, local_port))
+        self.sock.setblocking(False)
+        self.local_port = self.sock.getsockname()[1]
+        self.remote = (host, remote_port)
+        self.name = f"udp:{self.local_port}->{remote_port}"
+
+    def read(self) -> list[mavlink.MAVLink_message]:
+        msgs: list[mavlink.MAVLink_message] = []
+        while True:
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return msgs
+            except OSError:  # ICMP port unreachable from an earlier send: nobody listening
+                continue
+            self.remote = addr
+            self.active = True
+            msgs.extend(self.parse(data))
+
+    def send(self, data: bytes) -> None:
+        try:
+            self.sock.sendto(data, self.remote)
+        except OSError:
+            pass  # nobody listening there (yet): a real autopilot keeps sending too
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class TcpClient(MavClient):
+    """An accepted TCP connection; a client that cannot keep up is dropped, never waited for."""
+
+    def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
+        super().__init__()
+        self.sock = sock
+        self.sock.setblocking(False)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.name = f"tcp:{addr[0]}:{addr[1]}"
+        self.pending = b""
+        self.closed = False
+        self.active = True
+
+    def read(self) -> list[mavlink.MAVLink_message]:
+        try:
+            data = self.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return []
+        except OSError:
+            data = b""
+        if not data:
+            self.closed = True
+            return []
+        return self.parse(data)
+
+    def send(self, data: bytes) -> None:
+        if self.closed:
+            return
+        self.pending += data
+        try:
+            sent = self.sock.send(self.pending)
+            self.pending = self.pending[sent:]
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError:
+            self.closed = True
+        if len(self.pending) > MAX_TCP_BACKLOG_BYTES:
+            log.warning("%s cannot keep up; dropping it", self.name)
+            self.closed = True
+
+    def close(self) -> None:
+        self.closed = True
+        self.sock.close()
+
+
+@dataclass
+class ControlClient:
+    sock: socket.socket
+    buffer: bytes = b""
+    closed: bool = False
+
+
+@dataclass
+class ClockStats:
+    frames: int = 0
+    answered: int = 0
+    timeouts: int = 0
+    attached: bool = False
+    timeouts_in_row: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+def _listener(host: str, port: int) -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind((host, port))
+    s.listen(8)
+    s.setblocking(False)
+    return s
+
+
+class SitlServer:
+    """Runs a SimVehicle behind MAVLink, camera and control-surface sockets."""
+
+    def __init__(self, cfg: SitlConfig) -> None:
+        self.cfg = cfg
+        net = cfg.network
+        self.vehicle = SimVehicle(cfg)
+        self.scheduler = TelemetryScheduler()
+        self.lockstep = cfg.clock.mode == "lockstep"
+        self.steps_per_frame = max(1, int(round(cfg.clock.fdm_rate_hz / cfg.clock.frame_rate_hz)))
+        self.sel = selectors.DefaultSelector()
+        self.clients: list[MavClient] = []
+        self.stats = ClockStats()
+        self._stop = threading.Event()
+        self._answered = False
+        self._frame_ms = -1
+        self._mav_out = {AUTOPILOT: M.MAVLink(None, net.system_id, AUTOPILOT), CAMERA: M.MAVLink(None, net.system_id, CAMERA)}
+        for local, remote in zip(net.udp_local_ports, net.udp_remote_ports):
+            c = UdpClient(net.host, local, remote)
+            self.clients.append(c)
+            self.sel.register(c.sock, selectors.EVENT_READ, lambda c=c: self._on_mavlink(c, c.read()))
+        self.tcp_listener = _listener(net.host, net.tcp_port) if net.tcp_port is not None else None
+        if self.tcp_listener is not None:
+            self.sel.register(self.tcp_listener, selectors.EVENT_READ, self._accept_tcp)
+        self.control_listener = _listener(net.host, net.control_port)
+        self.sel.register(self.control_listener, selectors.EVENT_READ, self._accept_control)
+        self.camera = self._open_camera() if cfg.camera.enabled else None
+        cam_info = None
+        if self.camera is not None:
+            cam_info = CameraInfo(self.camera.server.uri, cfg.camera.width_px, cfg.camera.height_px, cfg.camera.hfov_deg, cfg.clock.frame_rate_hz)
+        self.handler = MessageHandler(self.vehicle, self.scheduler, cam_info)
+        self._next_camera_heartbeat_s = 0.0
+
+    def _open_camera(self) -> _CameraFeed:
+        return _CameraFeed(self.cfg, self.vehicle)
+
+    # ----- addresses -------------------------------------------------------------------------
+    def ports(self) -> dict[str, object]:
+        """The ports actually bound (0 in the config means 'any free port')."""
+        return {
+            "udp": [[c.local_port, c.remote[1]] for c in self.clients if isinstance(c, UdpClient)],
+            "tcp": self.tcp_listener.getsockname()[1] if self.tcp_listener else None,
+            "control": self.control_listener.getsockname()[1],
+            "camera": self.camera.server.port if self.camera else None,
+            "camera_uri": self.camera.server.uri if self.camera else None,
+            "clock": self.cfg.clock.mode,
+        }
+
+    # ----- running ---------------------------------------------------------------------------
+    def stop(self) -> None:
+        self._stop.set()
+
+    def serve(self, max_sim_s: float | None = None, on_frame: Callable[[], None] | None = None) -> None:
+        """Run frames until stop() (or ``max_sim_s`` of simulation time), then close everything."""
+        try:
+            self._wall0 = time.monotonic()
+            self._sim0 = self.vehicle.time_s
+            while not self._stop.is_set():
+                if max_sim_s is not None and self.vehicle.time_s >= max_sim_s:
+                    break
+                self._run_frame()
+                if on_frame is not None:
+                    on_frame()
+        finally:
+            self.close()
+
+    def _strict(self) -> bool:
+        return self.lockstep and self.stats.attached
+
+    def _run_frame(self) -> None:
+        v = self.vehicle
+        strict = self._strict()
+        for _ in range(self.steps_per_frame):
+            v.step()
+            if not strict:
+                self._send_due()
+                self._pace()
+        if strict:
+            self._send_due()
+        self._end_frame()
+        if self.lockstep:
+            self._await_answer()
+
+    def _pace(self) -> None:
+        """Real time: poll sockets until the wall clock catches up with simulation time."""
+        speed = self.cfg.clock.speed if not self.lockstep else 1.0
+        target = self._wall0 + (self.vehicle.time_s - self._sim0) / speed
+        now = time.monotonic()
+        if now - target > 0.5:  # fell behind (a debugger, a loaded machine): no catch-up burst
+            self._wall0, self._sim0 = now, self.vehicle.time_s
+            target = now
+        while True:
+            self._poll(max(0.0, target - time.monotonic()))
+            if time.monotonic() >= target or self._stop.is_set():
+                return
+
+    def _await_answer(self) -> None:
+        deadline = time.monotonic() + self.cfg.clock.lockstep_timeout_s
+        timeout_s = self.cfg.clock.lockstep_timeout_s if self.stats.attached else 0.0
+        deadline = time.monotonic() + timeout_s
+        while not self._answered and not self._stop.is_set():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            self._poll(remaining)
+        if not self.stats.attached:
+            return
+        if self._answered:
+            self.stats.answered += 1
+            self.stats.timeouts_in_row = 0
+        else:
+            self.stats.timeouts += 1
+            self.stats.timeouts_in_row += 1
+            if self.stats.timeouts_in_row >= DETACH_AFTER_TIMEOUTS:
+                log.info("lockstep client silent: pacing in real time until it answers")
+                self.stats.attached = False
+                self._wall0, self._sim0 = time.monotonic(), self.vehicle.time_s
+
+    def _end_frame(self) -> None:
+        """Camera image, pending events and the frame marker, in that order."""
+        v = self.vehicle
+        self.stats.frames += 1
+        self._answered = False
+        self._frame_ms = v.time_boot_ms
+        if self.camera is not None:
+            self.camera.publish(blocking=self._strict())
+            if v.time_s >= self._next_camera_heartbeat_s:
+                self._next_camera_heartbeat_s = v.time_s + 1.0
+                hb = M.MAVLink_heartbeat_message(M.MAV_TYPE_CAMERA, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
+                self._broadcast(Outgoing(CAMERA, hb))
+        self._flush_events()
+        self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_SYSTEM_TIME](v)))
+
+    def _send_due(self) -> None:
+        v = self.vehicle
+        for msg_id in self.scheduler.due(v.time_s):
+            self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[msg_id](v)))
+        self._flush_events()
+
+    def _flush_events(self) -> None:
+        events = self.vehicle.events
+        while events:
+            severity, text = events.popleft()
+            log.info("%s", text)
+            self._broadcast(Outgoing(AUTOPILOT, M.MAVLink_statustext_message(severity, text.encode()[:50])))
+
+    # ----- sending ---------------------------------------------------------------------------
+    def _pack(self, out: Outgoing) -> bytes:
+        return out.message.pack(self._mav_out[out.component])
+
+    def _broadcast(self, out: Outgoing) -> None:
+        data = self._pack(out)
+        for c in self.clients:
+            c.send(data)
+
+    # ----- receiving -------------------------------------------------------------------------
+    def _poll(self, timeout_s: float) -> None:
+        for key, _ in self.sel.select(timeout_s):
+            key.data()
+        if any(isinstance(c, TcpClient) and c.closed for c in self.clients):
+            self._drop_closed_tcp()
+
+    def _drop_closed_tcp(self) -> None:
+        for c in [c for c in self.clients if isinstance(c, TcpClient) and c.closed]:
+            try:
+                self.sel.unregister(c.sock)
+            except (KeyError, ValueError):
+                pass
+            c.close()
+            self.clients.remove(c)
+            log.info("%s disconnected", c.name)
+
+    def _on_mavlink(self, client: MavClient, msgs: list[mavlink.MAVLink_message]) -> None:
+        for msg in msgs:
+            result = self.handler.handle(msg)
+            for out in result.replies:
+                data = self._pack(out)
+                if out.to_sender_only:
+                    client.send(data)
+                else:
+                    for c in self.clients:
+                        c.send(data)
+            self._forward(client, msg)
+            echo = result.lockstep_answer_ms
+            if echo is not None and (echo == -1 or echo >= self._frame_ms):
+                self._answered = True
+                if self.lockstep and not self.stats.attached:
+                    self.stats.attached = True
+                    self.stats.timeouts_in_row = 0
+        self._flush_events()
+
+    def _forward(self, source: MavClient, msg: mavlink.MAVLink_message) -> None:
+        """Like PX4 with forwarding on: what one peer says reaches the other active peers."""
+        if msg.get_type() != "MANUAL_CONTROL":
+            return
+        data = msg.get_msgbuf()
+        for c in self.clients:
+            if c is not source and c.active:
+                c.send(bytes(data))
+
+    def _accept_tcp(self) -> None:
+        assert self.tcp_listener is not None
+        try:
+            sock, addr = self.tcp_listener.accept()
+        except OSError:
+            return
+        c = TcpClient(sock, addr)
+        self.clients.append(c)
+        self.sel.register(sock, selectors.EVENT_READ, lambda c=c: self._on_mavlink(c, c.read()))
+        log.info("%s connected", c.name)
+
+    # ----- control surface -------------------------------------------------------------------
+    def _accept_control(self) -> None:
+        try:
+            sock, _ = self.control_listener.accept()
+        except OSError:
+            return
+        sock.setblocking(False)
+        cc = ControlClient(sock)
+        self.sel.register(sock, selectors.EVENT_READ, lambda cc=cc: self._on_control(cc))
+
+    def _on_control(self, cc: ControlClient) -> None:
+        try:
+            data = cc.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data or len(cc.buffer) > 1 << 16:
+            self.sel.unregister(cc.sock)
+            cc.sock.close()
+            return
+        cc.buffer += data
+        while b"\n" in cc.buffer:
+            line, cc.buffer = cc.buffer.split(b"\n", 1)
+            if line.strip():
+                self._reply_control(cc, line)
+
+    def _reply_control(self, cc: ControlClient, line: bytes) -> None:
+        camera_uri = self.camera.server.uri if self.camera else None
+        try:
+            req = parse_request(line)
+            reply = handle_request(self.vehicle, req, camera_uri, self.cfg.clock.mode)
+            if req["cmd"] == "reset":
+                self.scheduler = self._fresh_scheduler()
+                self.handler.scheduler = self.scheduler
+                self._answered = True  # a reset answers the frame: the next one shows the start
+        except RequestError as exc:
+            reply = {"ok": False, "error": str(exc)}
+        try:
+            cc.sock.setblocking(True)
+            cc.sock.sendall((json.dumps(reply) + "\n").encode())
+            cc.sock.setblocking(False)
+        except OSError:
+            pass
+        self._flush_events()
+
+    def _fresh_scheduler(self) -> TelemetryScheduler:
+        """Keep requested intervals but restart the phase, so an episode is independent of the last."""
+        fresh = TelemetryScheduler()
+        for msg_id in COMPOSERS:
+            interval = self.scheduler.interval_s(msg_id)
+            if interval is None:
+                fresh.set_interval(msg_id, -1, self.vehicle.time_s)
+            elif not math.isclose(interval, fresh.interval_s(msg_id) or -1.0):
+                fresh.set_interval(msg_id, interval * 1e6, self.vehicle.time_s)
+        return fresh
+
+    # ----- teardown --------------------------------------------------------------------------
+    def close(self) -> None:
+        for c in list(self.clients):
+            try:
+                c.close()
+            except OSError:
+                pass
+        for s in (self.tcp_listener, self.control_listener):
+            if s is not None:
+                s.close()
+        if self.camera is not None:
+            self.camera.close()
+        self.sel.close()
+
+
+class _CameraFeed:
+    """Renders the downward camera from the true pose and publishes it on the frame server."""
+
+    def __init__(self, cfg: SitlConfig, vehicle: SimVehicle) -> None:
+        from sitl.camera import CameraRenderer
+        from sitl.frames import FrameServer
+
+        self.vehicle = vehicle
+        self.renderer = CameraRenderer(cfg.camera, vehicle.world)
+        self.server = FrameServer(cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding)
+        self.frame_number = 0
+
+    def publish(self, blocking: bool) -> None:
+        from sitl.frames import Frame
+
+        if not self.server.has_clients():
+            return
+        s = self.vehicle.state
+        image = self.renderer.render(s.position_ned_m, s.attitude_rad, s.time_s)
+        self.server.publish(Frame(self.frame_number, self.vehicle.time_boot_ms, image), blocking=blocking)
+        self.frame_number += 1
+
+    def close(self) -> None:
+        self.server.close()

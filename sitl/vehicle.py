@@ -1,0 +1,304 @@
+"""The simulated autopilot: modes, arming, commands, setpoints, failsafes and ground contact.
+
+Pure logic over the dynamics and the controller, no sockets: the server feeds it decoded
+MAVLink messages and FDM steps, and sends what it returns. Everything it does is a function of
+simulation time, so lockstep runs are deterministic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.config import SitlConfig
+from sitl.control import FlightController, Setpoint
+from sitl.dynamics import Dynamics, VehicleState
+from sitl.modes import Mode, refusal
+from sitl.offboard import SetpointRejected, TargetFields, to_setpoint
+from sitl.params import ParamStore, autopilot_params
+from sitl.world import Touchdown, World
+
+NAN = math.nan
+AUTOPILOT = 1
+CAMERA = mavlink.MAV_COMP_ID_CAMERA
+FORCE_DISARM_MAGIC = 21196
+LANDED_SPEED_M_S = 0.5
+PREFLIGHT_DISARM_S = 10.0
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """A message to send: from which of our components, and to whom."""
+
+    component: int
+    message: mavlink.MAVLink_message
+    to_sender_only: bool = True
+
+
+def hold_setpoint(state: VehicleState) -> Setpoint:
+    n, e, d = state.position_ned_m
+    return Setpoint(position_ned_m=(n, e, d), velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=state.attitude_rad[2])
+
+
+class SimVehicle:
+    """One multirotor with a PX4-like autopilot in a world with a pad on a ground vehicle."""
+
+    def __init__(self, cfg: SitlConfig) -> None:
+        self.cfg = cfg
+        self.world = World(cfg.world)
+        self.dynamics = Dynamics(cfg.clock.fdm_rate_hz, self.world.surface_height_m)
+        self.controller = FlightController(cfg.autopilot, self.dynamics.dt_s)
+        self.params = ParamStore(autopilot_params(cfg.autopilot))
+        self.rng = np.random.default_rng(cfg.world.seed)
+        self.events: deque[tuple[int, str]] = deque(maxlen=64)
+        self.rejected_setpoints = 0
+        self.episode = 0
+        spawn = (cfg.world.spawn_ne_m[0], cfg.world.spawn_ne_m[1], 0.0)
+        self.home_ned_m = spawn
+        self.dynamics.reset(spawn, yaw_rad=0.0)
+        self._enter_landed_disarmed()
+
+    # ----- state -------------------------------------------------------------------------
+    def _enter_landed_disarmed(self) -> None:
+        self.mode = Mode.AUTO_LOITER
+        self.armed = False
+        self.touchdown: Touchdown | None = None
+        self._sp = hold_setpoint(self.dynamics.state)
+        self._last_offboard_s = -math.inf
+        self._latest_offboard_sp: Setpoint | None = None
+        self._failsafe_since_s: float | None = None
+        self._landed_since_s: float | None = 0.0
+        self._armed_at_s = -math.inf
+        self._airborne = False
+        self._manual_at_s = -math.inf
+        self._last_down_speed_m_s = 0.0
+        self.controller.reset()
+
+    @property
+    def state(self) -> VehicleState:
+        return self.dynamics.state
+
+    @property
+    def time_s(self) -> float:
+        return self.dynamics.state.time_s
+
+    @property
+    def time_boot_ms(self) -> int:
+        return int(round(self.dynamics.state.time_s * 1000.0))
+
+    @property
+    def landed(self) -> bool:
+        return self._landed_since_s is not None
+
+    @property
+    def landed_state(self) -> int:
+        if self.landed:
+            return mavlink.MAV_LANDED_STATE_ON_GROUND
+        if self.mode is Mode.AUTO_TAKEOFF:
+            return mavlink.MAV_LANDED_STATE_TAKEOFF
+        if self.mode is Mode.AUTO_LAND:
+            return mavlink.MAV_LANDED_STATE_LANDING
+        return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def setpoints_fresh(self) -> bool:
+        return self.time_s - self._last_offboard_s <= self.params.get("COM_OF_LOSS_T")
+
+    def say(self, severity: int, text: str) -> None:
+        self.events.append((severity, text[:50]))
+
+    # ----- simulation --------------------------------------------------------------------
+    def step(self) -> VehicleState:
+        """One FDM step: failsafes, mode progress, controller, dynamics, ground contact."""
+        state = self.dynamics.state
+        self._check_failsafes(state.time_s)
+        self._progress_mode(state)
+        esc = self.controller.update(state, self._sp, self.armed)
+        new = self.dynamics.step(esc)
+        self._ground_contact(new)
+        return new
+
+    def _progress_mode(self, state: VehicleState) -> None:
+        if self.mode is Mode.AUTO_TAKEOFF and not math.isnan(self._sp.position_ned_m[2]):
+            if abs(state.position_ned_m[2] - self._sp.position_ned_m[2]) < 0.15:
+                self.say(mavlink.MAV_SEVERITY_INFO, "Takeoff complete, holding")
+                self._set_mode(Mode.AUTO_LOITER)
+
+    def _ground_contact(self, s: VehicleState) -> None:
+        vn, ve, vd = s.velocity_ned_m_s
+        speed = math.sqrt(vn * vn + ve * ve + vd * vd)
+        if s.on_ground and speed < LANDED_SPEED_M_S + 2.0 * abs(self._last_down_speed_m_s):
+            if self._airborne and self.touchdown is None:
+                td_speed = max(speed, self._last_down_speed_m_s)
+                self.touchdown = self.world.judge(np.asarray(s.position_ned_m), td_speed, s.time_s)
+                verdict = "on the pad" if self.touchdown.success else "off the pad"
+                self.say(mavlink.MAV_SEVERITY_NOTICE, f"Touchdown {verdict}, {self.touchdown.distance_to_pad_m:.2f} m")
+            self._airborne = False
+            if self._landed_since_s is None:
+                self._landed_since_s = s.time_s
+        elif not s.on_ground:
+            self._airborne = True
+            self._landed_since_s = None
+        self._last_down_speed_m_s = vd
+        self._auto_disarm(s.time_s)
+
+    def _auto_disarm(self, t_s: float) -> None:
+        if not self.armed or self._landed_since_s is None:
+            return
+        landed_for = t_s - self._landed_since_s
+        if self.mode is Mode.AUTO_LAND and landed_for > 0.5:
+            self._disarm("Landed, disarming")
+        elif self.touchdown is not None and landed_for > self.params.get("COM_DISARM_LAND") > 0:
+            self._disarm("Landed, disarming")
+        elif self.touchdown is None and t_s - self._armed_at_s > PREFLIGHT_DISARM_S and self.mode is not Mode.AUTO_TAKEOFF:
+            if self._sp.velocity_ned_m_s[2] >= 0 or math.isnan(self._sp.velocity_ned_m_s[2]):
+                self._disarm("Not taking off, disarming")
+
+    def _check_failsafes(self, t_s: float) -> None:
+        hold_s = self.params.get("COM_OF_LOSS_T")
+        if self.mode is Mode.OFFBOARD and t_s - self._last_offboard_s > hold_s:
+            self.say(mavlink.MAV_SEVERITY_WARNING, "Offboard setpoints lost: holding")
+            self._set_mode(Mode.AUTO_LOITER)
+            self._failsafe_since_s = t_s
+        elif self._failsafe_since_s is not None and self.mode is Mode.AUTO_LOITER:
+            if t_s - self._failsafe_since_s > self.params.get("COM_OBL_LAND_T") and not self.landed:
+                self.say(mavlink.MAV_SEVERITY_WARNING, "Offboard still lost: landing")
+                self._set_mode(Mode.AUTO_LAND)
+        if self.mode is Mode.POSCTL and t_s - self._manual_at_s > 0.5 and not self._sp_is_hold():
+            self._sp = hold_setpoint(self.state)
+
+    def _sp_is_hold(self) -> bool:
+        return self._sp.velocity_ned_m_s == (0.0, 0.0, 0.0) and not math.isnan(self._sp.position_ned_m[0])
+
+    # ----- modes and arming --------------------------------------------------------------
+    def _set_mode(self, mode: Mode) -> None:
+        """Enter ``mode`` with the setpoint it flies (hold/land/takeoff capture the pose now)."""
+        s = self.state
+        n, e, d = s.position_ned_m
+        yaw = s.attitude_rad[2]
+        if mode is not Mode.AUTO_LOITER:
+            self._failsafe_since_s = None
+        if mode is Mode.AUTO_LAND:
+            self._sp = Setpoint(position_ned_m=(n, e, NAN), velocity_ned_m_s=(0.0, 0.0, self.params.get("MPC_LAND_SPEED")), yaw_rad=yaw)
+        elif mode is Mode.AUTO_TAKEOFF:
+            ground_d = -self.world.surface_height_m(n, e, s.time_s)
+            self._sp = Setpoint(position_ned_m=(n, e, ground_d - self._takeoff_alt_m), velocity_ned_m_s=(0.0, 0.0, NAN), yaw_rad=yaw)
+        elif mode in (Mode.AUTO_LOITER, Mode.POSCTL):
+            self._sp = hold_setpoint(s)
+        self.mode = mode
+
+    _takeoff_alt_m = 2.5
+
+    def arm(self, force: bool = False) -> tuple[int, str]:
+        if self.armed:
+            return mavlink.MAV_RESULT_ACCEPTED, ""
+        self.armed = True
+        self._armed_at_s = self.time_s
+        self.touchdown = None
+        self.controller.reset()
+        self._sp = hold_setpoint(self.state) if self.mode is not Mode.OFFBOARD else self._sp
+        self.say(mavlink.MAV_SEVERITY_INFO, "Armed")
+        return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    def disarm(self, force: bool = False) -> tuple[int, str]:
+        if not self.armed:
+            return mavlink.MAV_RESULT_ACCEPTED, ""
+        if not self.landed and not force:
+            return mavlink.MAV_RESULT_DENIED, "Disarm refused: in the air (use force)"
+        self._disarm("Disarmed")
+        return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    def _disarm(self, why: str) -> None:
+        self.armed = False
+        self.say(mavlink.MAV_SEVERITY_INFO, why)
+
+    def request_mode(self, mode: Mode) -> tuple[int, str]:
+        why = refusal(mode, armed=self.armed, landed=self.landed, setpoints_fresh=self.setpoints_fresh())
+        if why:
+            return mavlink.MAV_RESULT_DENIED, why
+        if mode is self.mode:
+            return mavlink.MAV_RESULT_ACCEPTED, ""
+        if mode is Mode.OFFBOARD:
+            self.mode = mode
+            self._sp = self._latest_offboard_sp or hold_setpoint(self.state)
+            self._failsafe_since_s = None
+        else:
+            self._set_mode(Mode.POSCTL if mode in (Mode.MANUAL, Mode.ALTCTL) else mode)
+        self.say(mavlink.MAV_SEVERITY_INFO, f"Mode {self.mode.px4_name}")
+        return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    def takeoff(self, alt_amsl_m: float) -> tuple[int, str]:
+        if not self.armed:
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "Takeoff refused: arm first"
+        rel = alt_amsl_m - self.dynamics.home_alt_m if math.isfinite(alt_amsl_m) else NAN
+        self._takeoff_alt_m = rel if math.isfinite(rel) and 0.3 < rel < 100 else self.params.get("MIS_TAKEOFF_ALT")
+        self._set_mode(Mode.AUTO_TAKEOFF)
+        self.say(mavlink.MAV_SEVERITY_INFO, f"Taking off to {self._takeoff_alt_m:.1f} m")
+        return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    def land(self) -> tuple[int, str]:
+        if self.landed and not self.armed:
+            return mavlink.MAV_RESULT_DENIED, "Land refused: already landed"
+        self._set_mode(Mode.AUTO_LAND)
+        self.say(mavlink.MAV_SEVERITY_INFO, "Landing")
+        return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    # ----- setpoint streams ----------------------------------------------------------------
+    def offboard_setpoint(self, f: TargetFields) -> bool:
+        """Apply SET_POSITION_TARGET_LOCAL_NED; False (and a warning) when it is refused."""
+        s = self.state
+        try:
+            sp = to_setpoint(f, s.position_ned_m, s.attitude_rad[2], self.params.get("MPC_XY_VEL_MAX"))
+        except SetpointRejected as exc:
+            self.rejected_setpoints += 1
+            if self.rejected_setpoints in (1, 10, 100) or self.rejected_setpoints % 1000 == 0:
+                self.say(mavlink.MAV_SEVERITY_WARNING, f"Setpoint refused ({self.rejected_setpoints}): {exc}")
+            return False
+        self._last_offboard_s = s.time_s
+        self._latest_offboard_sp = sp
+        if self.mode is Mode.OFFBOARD:
+            self._sp = sp
+        return True
+
+    def manual_control(self, x: float, y: float, z: float, r: float) -> None:
+        """MANUAL_CONTROL sticks fly the vehicle in POSCTL (PX4's position mode)."""
+        self._manual_at_s = self.time_s
+        if self.mode is not Mode.POSCTL:
+            return
+        sticks = [max(-1.0, min(1.0, v / 1000.0)) if math.isfinite(v) else 0.0 for v in (x, y, r)]
+        thr = max(0.0, min(1.0, z / 1000.0)) if math.isfinite(z) else 0.5
+        climb = (thr - 0.5) * 2.0
+        if max(abs(v) for v in (*sticks, climb)) < 0.05:
+            if not self._sp_is_hold():
+                self._sp = hold_setpoint(self.state)
+            return
+        vxy = self.params.get("MPC_XY_VEL_MAX")
+        yaw = self.state.attitude_rad[2]
+        fwd, right = sticks[0] * vxy, sticks[1] * vxy
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        vz = -climb * (self.params.get("MPC_Z_VEL_MAX_UP") if climb > 0 else self.params.get("MPC_Z_VEL_MAX_DN"))
+        self._sp = Setpoint(
+            velocity_ned_m_s=(c * fwd - s_ * right, s_ * fwd + c * right, vz),
+            yaw_rate_rad_s=sticks[2] * math.radians(self.params.get("MPC_MAN_Y_MAX")),
+        )
+
+    # ----- simulator control surface ------------------------------------------------------
+    def reset_episode(self, seed: int | None) -> np.ndarray:
+        """Place the vehicle at a random start above the pad, hovering, armed, in hold."""
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        t = self.time_s
+        self.world.restart(t)
+        start = self.world.episode_start(self.rng, t)
+        self.dynamics.reset(tuple(start), yaw_rad=0.0, time_s=t)
+        self._enter_landed_disarmed()
+        self._landed_since_s = None
+        self._airborne = True
+        self.armed = True
+        self._armed_at_s = t
+        self.episode += 1
+        self.say(mavlink.MAV_SEVERITY_INFO, f"Episode {self.episode} start")
+        return start
