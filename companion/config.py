@@ -27,6 +27,18 @@ class LinkConfig(Section):
     link_lost_s: float = Field(1.5, gt=0, description="no telemetry this long -> link lost")
     command_timeout_s: float = Field(1.0, gt=0)
     command_retries: int = Field(3, ge=0)
+    baud: int = Field(57600, gt=0, description="serial devices without a ',BAUD' suffix")
+    heartbeat_period_s: float = Field(1.0, gt=0, description="our own HEARTBEAT (onboard controller)")
+    telemetry_rate_hz: float = Field(50.0, ge=0, description="ATTITUDE, LOCAL_POSITION_NED; 0 = leave as is")
+    status_rate_hz: float = Field(2.0, ge=0, description="EXTENDED_SYS_STATE; 0 = leave as is")
+    request_rates_on_connect: bool = True
+    frame_marker: Literal["SYSTEM_TIME", "LOCAL_POSITION_NED", "ATTITUDE"] = Field(
+        "SYSTEM_TIME", description="message whose arrival ends a frame (SITL lockstep: SYSTEM_TIME)"
+    )
+    setpoint_max_speed_m_s: float = Field(10.0, gt=0, description="the link refuses faster setpoints")
+    setpoint_max_yaw_rate_rad_s: float = Field(3.0, gt=0)
+    setpoint_max_distance_m: float = Field(1000.0, gt=0, description="position setpoints from origin")
+    takeoff_max_alt_m: float = Field(120.0, gt=0)
 
 
 class CommandsConfig(Section):
