@@ -120,6 +120,10 @@ class PilotConfig(Section):
     centre_tolerance_m: float = Field(0.2, ge=0, description="offset that always counts as centred")
     commit_height_m: float = Field(
         1.0, ge=0, description="pad lost below this height -> keep landing instead of searching"
+    xy_trim_per_m_s: float = Field(
+        0.15, ge=0, description="stick per metre-second of lasting offset (a pilot's trim)"
+    )
+    xy_trim_max: float = Field(0.3, ge=0, le=1, description="largest trim, in stick units")
     )
     search_climb_stick: float = Field(0.3, ge=0, le=1, description="climb while the pad is lost")
     # Intervention rule of a synthetic operator (take over ... let go).
@@ -132,6 +136,9 @@ class PilotConfig(Section):
     release_edge_fraction: float = Field(0.5, gt=0, le=1)
     release_off_centre_m: float = Field(0.3, gt=0)
     release_hold_s: float = Field(1.0, ge=0, description="back on track this long -> let go")
+    lost_hold_s: float = Field(
+        0.5, ge=0, description="pad lost shorter than this -> keep the last command (a blink)"
+    )
     # A ground station's joystick (MAVLink MANUAL_CONTROL).
     manual_override_button: int = Field(0, ge=0, le=31, description="bit of buttons/buttons2")
     manual_timeout_s: float = Field(0.5, gt=0, description="older message -> neutral, no override")
