@@ -76,9 +76,19 @@ class SafetyConfig(Section):
 
 
 class PerceptionConfig(Section):
-    """companion.perception: camera source and pad detector."""
+    """companion.perception: camera source and pad detector (see docs/camera.md)."""
 
-    camera: str = "auto"
+    camera: str = Field(
+        "auto", description='"auto" (the vehicle\'s MAVLink camera), colf://host:port, a device index, a file or a URL'
+    )
+    open_timeout_s: float = Field(3.0, gt=0, description="a source that gives no frame this long fails at start")
+    frame_timeout_s: float = Field(0.2, ge=0, description="how long to wait for the frame of a control step")
+    hue_min: int = Field(135, ge=0, le=179, description="OpenCV hue (0-179) range of the pad's magenta")
+    hue_max: int = Field(170, ge=0, le=179)
+    saturation_min: int = Field(110, ge=0, le=255, description="about halfway between pad and roof")
+    value_min: int = Field(35, ge=0, le=255, description="darker pixels carry no reliable hue")
+    min_area_px: float = Field(12.0, gt=0, description="smaller magenta blobs are noise")
+    min_solidity: float = Field(0.85, gt=0, le=1, description="blob area / convex hull area: the pad is convex")
 
 
 class LearnerConfig(Section):
