@@ -1,0 +1,43 @@
+"""The link to the vehicle: one interface (:class:`VehicleLink`), two backends.
+
+``open_link(cfg)`` gives the pymavlink backend (any MAVLink autopilot, lockstep-aware);
+``open_link(cfg, "mavsdk")`` the MAVSDK one (PX4, real time only). See docs/link.md.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from companion.config import LinkConfig
+from companion.errors import ConfigError
+from companion.link.base import LinkStats, SetpointLimits, VehicleLink, VehicleSnapshot
+from companion.link.manual_control import ManualControlInput
+from companion.setpoints import VelocitySetpoint
+
+LinkKind = Literal["pymavlink", "mavsdk"]
+
+__all__ = [
+    "LinkStats",
+    "ManualControlInput",
+    "SetpointLimits",
+    "VehicleLink",
+    "VehicleSnapshot",
+    "VelocitySetpoint",
+    "open_link",
+]
+
+
+def open_link(
+    cfg: LinkConfig, kind: LinkKind = "pymavlink", tlog_path: str | Path | None = None
+) -> VehicleLink:
+    """A new, not yet connected link of the given backend; call ``connect()`` next."""
+    if kind == "pymavlink":
+        from companion.link.mavlink_link import MavlinkLink
+
+        return MavlinkLink(cfg, tlog_path=tlog_path)
+    if kind == "mavsdk":
+        from companion.link.mavsdk_link import MavsdkLink
+
+        return MavsdkLink(cfg, tlog_path=tlog_path)
+    raise ConfigError(f"unknown link kind {kind!r}; use 'pymavlink' or 'mavsdk'")

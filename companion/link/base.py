@@ -1,0 +1,184 @@
+"""The vehicle as the companion sees it: one interface, whatever library talks MAVLink.
+
+Backends (pymavlink, MAVSDK) run their own I/O thread; callers get immutable snapshots and
+blocking calls that raise :mod:`companion.errors` types (``LinkLost``, ``LinkTimeout``,
+``CommandRejected``) with a hint of what to do.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from companion.link.manual_control import ManualControlInput
+from companion.setpoints import VelocitySetpoint
+
+Vec3 = tuple[float, float, float]
+ManualControlCallback = Callable[[ManualControlInput], None]
+
+LANDED_STATES = ("UNDEFINED", "ON_GROUND", "IN_AIR", "TAKEOFF", "LANDING")
+
+
+@dataclass(frozen=True)
+class VehicleSnapshot:
+    """Everything known about the vehicle at one instant; replaced whole on every update."""
+
+    received_s: float  # monotonic time of the newest message folded in
+    time_boot_ms: int  # the vehicle's clock, from its newest timestamped message
+    frame_time_boot_ms: int | None  # newest frame marker (SYSTEM_TIME in lockstep), if any
+    system_id: int
+    autopilot: str  # "PX4", "ARDUPILOTMEGA", ...
+    armed: bool
+    mode: str  # PX4 name, e.g. "OFFBOARD", "AUTO.LOITER"
+    landed_state: str  # one of LANDED_STATES
+    position_ned_m: Vec3
+    velocity_ned_m_s: Vec3
+    attitude_rad: Vec3  # roll, pitch, yaw
+    rates_frd_rad_s: Vec3  # roll rate, pitch rate, yaw rate
+    heartbeat_s: float  # monotonic time of the newest HEARTBEAT
+    position_valid: bool = False  # a position message has arrived
+    attitude_valid: bool = False  # an attitude message has arrived
+
+    @property
+    def in_air(self) -> bool:
+        return self.landed_state in ("IN_AIR", "TAKEOFF", "LANDING")
+
+
+@dataclass(frozen=True)
+class LinkStats:
+    """Counters a session logs and tests assert on."""
+
+    messages_received: int = 0
+    bad_data: int = 0
+    telemetry_rejected: int = 0  # telemetry carrying non-finite values, ignored
+    manual_control_received: int = 0
+    manual_control_dropped: int = 0  # out-of-range axes
+    callback_errors: int = 0
+    setpoints_sent: int = 0
+    link_losses: int = 0
+    reconnections: int = 0
+    thread_errors: int = 0
+
+
+@dataclass(frozen=True)
+class SetpointLimits:
+    """The last line of defence: the link refuses anything beyond these."""
+
+    max_speed_m_s: float = 10.0
+    max_yaw_rate_rad_s: float = 3.0
+    max_distance_m: float = 1000.0
+
+    def check_velocity(self, sp: VelocitySetpoint) -> None:
+        speed = max(abs(sp.forward_m_s), abs(sp.right_m_s), abs(sp.down_m_s))
+        if speed > self.max_speed_m_s:
+            raise ValueError(
+                f"velocity setpoint {sp} exceeds the link's limit of {self.max_speed_m_s} m/s; "
+                "clip it in the commands module or raise companion.link.setpoint_max_speed_m_s"
+            )
+        if abs(sp.yaw_rate_rad_s) > self.max_yaw_rate_rad_s:
+            raise ValueError(
+                f"yaw rate {sp.yaw_rate_rad_s} rad/s exceeds the link's limit of "
+                f"{self.max_yaw_rate_rad_s}; clip it or raise companion.link.setpoint_max_yaw_rate_rad_s"
+            )
+
+    def check_position(self, north_m: float, east_m: float, down_m: float, yaw_rad: float) -> None:
+        values = {"north_m": north_m, "east_m": east_m, "down_m": down_m, "yaw_rad": yaw_rad}
+        for name, value in values.items():
+            if not math.isfinite(value):
+                raise ValueError(f"position setpoint {name}={value} is not finite; drop it")
+        if max(abs(north_m), abs(east_m), abs(down_m)) > self.max_distance_m:
+            raise ValueError(
+                f"position setpoint ({north_m}, {east_m}, {down_m}) is further than "
+                f"{self.max_distance_m} m from the origin; check the frame or raise "
+                "companion.link.setpoint_max_distance_m"
+            )
+        if abs(yaw_rad) > 2 * math.pi:
+            raise ValueError(f"yaw {yaw_rad} rad is outside [-2pi, 2pi]; wrap it first")
+
+
+class VehicleLink(ABC):
+    """ "The vehicle": telemetry in, commands and setpoints out.
+
+    Calls other than :meth:`state`, :meth:`link_alive`, :meth:`stats` and :meth:`close` raise
+    ``LinkLost`` when nothing has been heard from the vehicle for ``link_lost_s``; the link
+    keeps listening and resumes by itself when the vehicle is heard again.
+    """
+
+    @abstractmethod
+    def connect(self, timeout_s: float = 10.0) -> VehicleSnapshot:
+        """Start I/O and wait for the vehicle's heartbeat; LinkTimeout if none comes."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Stop threads, release the port, close the tlog. Idempotent."""
+
+    @abstractmethod
+    def state(self) -> VehicleSnapshot | None:
+        """The newest snapshot (None before the first heartbeat)."""
+
+    @abstractmethod
+    def wait_frame(self, after_time_boot_ms: int, timeout_s: float) -> VehicleSnapshot | None:
+        """The first snapshot whose frame marker is newer than ``after_time_boot_ms``.
+
+        In lockstep the frame marker is the SITL's SYSTEM_TIME; in real time it is the next
+        telemetry update. None on timeout.
+        """
+
+    @abstractmethod
+    def arm(self) -> None: ...
+
+    @abstractmethod
+    def disarm(self) -> None: ...
+
+    @abstractmethod
+    def set_mode(self, name: str) -> None:
+        """Switch flight mode by PX4 name ("OFFBOARD", "AUTO.LOITER", "HOLD", ...)."""
+
+    @abstractmethod
+    def takeoff(self, alt_m: float) -> None:
+        """Take off to ``alt_m`` above home."""
+
+    @abstractmethod
+    def land(self) -> None: ...
+
+    @abstractmethod
+    def send_velocity_body(
+        self, sp: VelocitySetpoint, echo_time_boot_ms: int | None = None
+    ) -> None:
+        """Stream one body-frame velocity setpoint; ``echo_time_boot_ms`` answers a lockstep frame."""
+
+    @abstractmethod
+    def send_position_ned(
+        self,
+        north_m: float,
+        east_m: float,
+        down_m: float,
+        yaw_rad: float,
+        echo_time_boot_ms: int | None = None,
+    ) -> None:
+        """Stream one local-NED position setpoint."""
+
+    @abstractmethod
+    def request_rates(self, rates_hz: Mapping[str, float] | None = None) -> dict[str, str]:
+        """Ask for telemetry rates (message name -> Hz); returns message name -> result name."""
+
+    @abstractmethod
+    def link_alive(self) -> bool: ...
+
+    @abstractmethod
+    def on_manual_control(self, callback: ManualControlCallback | None) -> None:
+        """Register (or with None remove) the receiver of checked MANUAL_CONTROL inputs.
+
+        It runs on the link's I/O thread: keep it short (hand the value over, return).
+        """
+
+    @abstractmethod
+    def stats(self) -> LinkStats: ...
+
+    def __enter__(self) -> VehicleLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
