@@ -128,6 +128,17 @@ class FakeVehicle:
     def silent(self) -> bool:
         return self._silent
 
+    @property
+    def mode(self) -> str:
+        """The fake autopilot's current PX4 mode name."""
+        with self._lock:
+            return self.autopilot.state.mode
+
+    @property
+    def armed(self) -> bool:
+        with self._lock:
+            return self.autopilot.state.armed
+
     # ----------------------------------------------------------------- injections
     def send_manual_control(
         self,
@@ -244,7 +255,9 @@ class FakeVehicle:
         with self._lock:
             self.autopilot.advance(dt_s)
             self._sim_ms = int((time.monotonic() - self._t0) * 1000)
-            self._send_all(self.autopilot.telemetry(self._sim_ms))
+            msgs = self.autopilot.telemetry(self._sim_ms)
+            msgs.append(self._mav.system_time_encode(int(time.time() * 1e6), self._sim_ms))
+            self._send_all(msgs)  # the SITL ends every frame with SYSTEM_TIME in real time too
 
     def _receive(self, timeout_s: float) -> None:
         try:
