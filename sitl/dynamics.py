@@ -1,0 +1,354 @@
+"""The simulated multirotor's flight dynamics: JSBSim's F450 quadrotor, commanded per motor.
+
+The model is derived from the ``F450`` that the ``jsbsim`` package ships: its metrics, mass,
+propulsion (four DJI E305 motors with 9450 propellers) and aerodynamics are loaded unchanged,
+but its own flight control system and sensor models are left out (our cascade in
+:mod:`sitl.control` replaces them and they cost a third of each step), and its ground contacts
+are made fit for landings: legs soft enough for a stable contact at 126 Hz, skids instead of
+wheels, and contact points at the arm tips and on top so that a vehicle that tips over rests on
+its frame instead of sinking through the ground.
+
+Motor order of ``step(esc)`` (PX4's quad X numbering, motors 1..4):
+``(front right, aft left, front left, aft right)``; front right and aft left spin
+counter-clockwise seen from above, front left and aft right clockwise.
+
+``position_ned_m`` is local NED with its origin on the ground at home; its down axis is that of
+the centre of gravity raised by the legs' length, so the vehicle standing on flat ground reads
+``z = 0`` and standing on the roof of the ground vehicle reads ``z = -roof height``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import jsbsim
+
+FT_M = 0.3048
+LBF_N = 4.4482216152605
+GRAVITY_M_S2 = 9.80665
+
+# PX4 SITL's default home (Zurich), so that ground stations show a familiar place.
+HOME_LAT_DEG = 47.397742
+HOME_LON_DEG = 8.545594
+HOME_ALT_M = 488.0
+
+GEAR_DEPTH_M = 0.1524  # the legs' contact points below the centre of gravity
+MOTOR_ORDER = ("front_right", "aft_left", "front_left", "aft_right")
+HOVER_THROTTLE = 0.426  # ESC command that holds the 1.4 kg F450 still in the air
+
+_WGS84_A_M = 6378137.0
+_WGS84_E2 = 6.69437999014e-3
+_SIN2_LAT = math.sin(math.radians(HOME_LAT_DEG)) ** 2
+_NORTH_M_PER_RAD = _WGS84_A_M * (1 - _WGS84_E2) / (1 - _WGS84_E2 * _SIN2_LAT) ** 1.5
+_EAST_M_PER_RAD = (
+    _WGS84_A_M / math.sqrt(1 - _WGS84_E2 * _SIN2_LAT) * math.cos(math.radians(HOME_LAT_DEG))
+)
+_HOME_LAT_RAD = math.radians(HOME_LAT_DEG)
+_HOME_LON_RAD = math.radians(HOME_LON_DEG)
+
+SPIN_UP_STEPS = 48  # FDM steps to bring the propellers to hover speed (or to a stop) on reset
+SURFACE_TOLERANCE_M = 0.05  # a surface counts as "below" while the feet are above it minus this
+
+
+def ned_to_geodetic(north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
+    """Latitude, longitude (deg) and altitude above mean sea level (m) of a local NED point."""
+    lat = HOME_LAT_DEG + math.degrees(north_m / _NORTH_M_PER_RAD)
+    lon = HOME_LON_DEG + math.degrees(east_m / _EAST_M_PER_RAD)
+    return lat, lon, HOME_ALT_M - down_m
+
+
+def geodetic_to_ned(lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
+    """Inverse of :func:`ned_to_geodetic` (flat earth around home: exact to mm within km)."""
+    north = math.radians(lat_deg - HOME_LAT_DEG) * _NORTH_M_PER_RAD
+    east = math.radians(lon_deg - HOME_LON_DEG) * _EAST_M_PER_RAD
+    return north, east, HOME_ALT_M - alt_m
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleState:
+    """True state of the vehicle at one instant (what sensors would measure, without noise)."""
+
+    time_s: float
+    position_ned_m: tuple[float, float, float]
+    velocity_ned_m_s: tuple[float, float, float]
+    attitude_rad: tuple[float, float, float]  # roll, pitch, yaw (yaw in (-pi, pi])
+    rates_frd_rad_s: tuple[float, float, float]  # p, q, r body rates
+    accel_frd_m_s2: tuple[float, float, float]  # specific force, as an IMU measures it
+    on_ground: bool  # any leg or part of the frame touches a surface
+
+
+@dataclass(frozen=True, slots=True)
+class Contact:
+    """The moment the vehicle met a surface after flying: where, when and how fast."""
+
+    time_s: float
+    position_ned_m: tuple[float, float, float]
+    velocity_ned_m_s: tuple[float, float, float]  # just before contact
+
+    @property
+    def speed_m_s(self) -> float:
+        return math.sqrt(sum(v * v for v in self.velocity_ned_m_s))
+
+
+def flat_ground(north_m: float, east_m: float, t_s: float) -> float:
+    """The default surface: open ground everywhere."""
+    return 0.0
+
+
+class Dynamics:
+    """The F450 in JSBSim, stepped at ``fdm_rate_hz`` with four ESC commands in [0, 1].
+
+    ``surface_height_m(north_m, east_m, t_s)`` gives the height of whatever is below a point
+    (e.g. :meth:`sitl.world.World.surface_height_m`); JSBSim's terrain elevation follows it
+    under the vehicle, so a roof is as solid as the ground. A surface higher than the vehicle's
+    feet is not "below" it: the sides of obstacles are not modelled, only their tops.
+    """
+
+    def __init__(
+        self,
+        fdm_rate_hz: float = 126.0,
+        surface_height_m: Callable[[float, float, float], float] | None = None,
+    ) -> None:
+        if not (math.isfinite(fdm_rate_hz) and 60.0 <= fdm_rate_hz <= 1000.0):
+            raise ValueError(f"fdm_rate_hz={fdm_rate_hz!r}: use a rate between 60 and 1000 Hz")
+        self.dt_s = 1.0 / fdm_rate_hz
+        self.home_lat_deg = HOME_LAT_DEG
+        self.home_lon_deg = HOME_LON_DEG
+        self.home_alt_m = HOME_ALT_M
+        self._surface = surface_height_m or flat_ground
+        self._fdm = _load_f450(self.dt_s)
+        self._bind_properties()
+        self._time_base_s = 0.0
+        self._steps = 0
+        self._terrain_m = 0.0
+        self.last_contact: Contact | None = None
+        self._state = self.reset((0.0, 0.0, 0.0), time_s=0.0)
+
+    def _bind_properties(self) -> None:
+        node = self._fdm.get_property_manager().get_node
+        self._set_throttle = tuple(
+            node(f"fcs/throttle-cmd-norm[{i}]").set_double_value for i in range(4)
+        )
+        self._set_terrain_ft = node("position/terrain-elevation-asl-ft").set_double_value
+        names = (
+            "position/lat-geod-rad position/long-gc-rad position/h-sl-meters "
+            "velocities/v-north-fps velocities/v-east-fps velocities/v-down-fps "
+            "attitude/phi-rad attitude/theta-rad attitude/psi-rad "
+            "velocities/p-rad_sec velocities/q-rad_sec velocities/r-rad_sec "
+            "accelerations/a-pilot-x-ft_sec2 accelerations/a-pilot-y-ft_sec2 "
+            "accelerations/a-pilot-z-ft_sec2 gear/wow forces/fbz-gear-lbs"
+        ).split()
+        self._getters = tuple(node(n).get_double_value for n in names)
+
+    @property
+    def state(self) -> VehicleState:
+        return self._state
+
+    @property
+    def time_s(self) -> float:
+        return self._time_base_s + self._steps * self.dt_s
+
+    def reset(
+        self,
+        position_ned_m: tuple[float, float, float],
+        yaw_rad: float = 0.0,
+        velocity_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        time_s: float | None = None,
+    ) -> VehicleState:
+        """Place the vehicle level at a pose, hovering in the air or at rest on a surface.
+
+        A position below the surface under it is lifted onto that surface. In the air the
+        propellers already turn at hover speed; on a surface they stand still.
+        """
+        values = (*position_ned_m, yaw_rad, *velocity_ned_m_s)
+        if len(values) != 7 or not all(math.isfinite(v) for v in values):
+            raise ValueError(
+                f"reset needs a finite 3D position, yaw and 3D velocity; got "
+                f"position={position_ned_m!r}, yaw={yaw_rad!r}, velocity={velocity_ned_m_s!r}"
+            )
+        self._time_base_s = self.time_s if time_s is None else float(time_s)
+        self._steps = 0
+        north, east, down = (float(v) for v in position_ned_m)
+        surface = float(self._surface(north, east, self._time_base_s))
+        on_surface = -down <= surface + 1e-3
+        if on_surface:
+            down, velocity_ned_m_s = -surface, (0.0, 0.0, 0.0)
+        self._terrain_m = surface
+        self._initial = (north, east, down, float(yaw_rad), *map(float, velocity_ned_m_s))
+        throttle = 0.0 if on_surface else HOVER_THROTTLE
+        self._apply_initial_conditions()
+        for set_throttle in self._set_throttle:
+            set_throttle(throttle)
+        for _ in range(SPIN_UP_STEPS):  # propellers keep their speed across run_ic
+            self._fdm.run()
+        self._apply_initial_conditions()
+        self.last_contact = None
+        self._state = self._read_state()
+        return self._state
+
+    def _apply_initial_conditions(self) -> None:
+        north, east, down, yaw, vn, ve, vd = self._initial
+        lat, lon, _ = ned_to_geodetic(north, east, down)
+        fdm = self._fdm
+        fdm["ic/lat-geod-deg"] = lat
+        fdm["ic/long-gc-deg"] = lon
+        fdm["ic/terrain-elevation-ft"] = (HOME_ALT_M + self._terrain_m) / FT_M
+        fdm["ic/h-sl-ft"] = (HOME_ALT_M - down + GEAR_DEPTH_M) / FT_M
+        fdm["ic/psi-true-rad"] = yaw % (2 * math.pi)
+        fdm["ic/phi-rad"] = 0.0
+        fdm["ic/theta-rad"] = 0.0
+        for name, value in (("vn", vn), ("ve", ve), ("vd", vd)):
+            fdm[f"ic/{name}-fps"] = value / FT_M
+        for name in ("p", "q", "r"):
+            fdm[f"ic/{name}-rad_sec"] = 0.0
+        fdm.run_ic()
+
+    def step(self, esc: tuple[float, float, float, float]) -> VehicleState:
+        """Advance one FDM step with ESC commands (MOTOR_ORDER), each clipped to [0, 1].
+
+        A non-finite command counts as 0 (motor off): it never reaches JSBSim.
+        """
+        e0, e1, e2, e3 = esc
+        s0, s1, s2, s3 = self._set_throttle
+        s0(_clip_unit(e0))
+        s1(_clip_unit(e1))
+        s2(_clip_unit(e2))
+        s3(_clip_unit(e3))
+        prev = self._state
+        north, east, down = prev.position_ned_m
+        surface = self._surface(north, east, prev.time_s)
+        if surface != self._terrain_m and surface <= SURFACE_TOLERANCE_M - down:
+            self._terrain_m = surface
+            self._set_terrain_ft((HOME_ALT_M + surface) / FT_M)
+        self._fdm.run()
+        self._steps += 1
+        state = self._read_state()
+        if state.on_ground and not prev.on_ground:
+            self.last_contact = Contact(state.time_s, state.position_ned_m, prev.velocity_ned_m_s)
+        self._state = state
+        return state
+
+    def _read_state(self) -> VehicleState:
+        (lat, lon, h, vn, ve, vd, phi, theta, psi, p, q, r, ax, ay, az, wow, fz) = [
+            get() for get in self._getters
+        ]
+        return VehicleState(
+            self._time_base_s + self._steps * self.dt_s,
+            (
+                (lat - _HOME_LAT_RAD) * _NORTH_M_PER_RAD,
+                (lon - _HOME_LON_RAD) * _EAST_M_PER_RAD,
+                HOME_ALT_M + GEAR_DEPTH_M - h,
+            ),
+            (vn * FT_M, ve * FT_M, vd * FT_M),
+            (phi, theta, psi - 2 * math.pi if psi > math.pi else psi),
+            (p, q, r),
+            (ax * FT_M, ay * FT_M, az * FT_M),
+            wow > 0.0 or fz != 0.0,
+        )
+
+
+def _clip_unit(u: float) -> float:
+    """``u`` clipped to [0, 1]; NaN becomes 0."""
+    return (u if u < 1.0 else 1.0) if u > 0.0 else 0.0
+
+
+class _SilentLogger(jsbsim.FGLogger):
+    """Swallows JSBSim's console chatter; real failures still raise exceptions."""
+
+    def set_level(self, level: jsbsim.LogLevel) -> None:
+        pass
+
+    def file_location(self, filename: str, line: int) -> None:
+        pass
+
+    def message(self, message: str) -> None:
+        pass
+
+    def format(self, format: jsbsim.LogFormat) -> None:
+        pass
+
+    def flush(self) -> None:
+        pass
+
+
+_TOP_XML = """<?xml version="1.0"?>
+<fdm_config name="F450" version="2.0" release="ALPHA">
+  <fileheader><description>JSBSim's F450 without its FCS and sensors, with landing contacts
+  (derived by sitl/dynamics.py)</description></fileheader>
+  <metrics file="Metrics.xml"/>
+  <mass_balance file="Mass.xml"/>
+  <ground_reactions file="Gear.xml"/>
+  <propulsion file="Propulsion.xml"/>
+  <aerodynamics file="Aero.xml"/>
+</fdm_config>
+"""
+
+# (name, type, x, y, z) in JSBSim's structural frame (x aft, y right, z up; metres from the CG).
+_CONTACTS = (
+    ("Front_Center", "BOGEY", -0.1016, 0.0, -GEAR_DEPTH_M),
+    ("Aft_Left", "BOGEY", 0.1016, -0.1016, -GEAR_DEPTH_M),
+    ("Aft_Right", "BOGEY", 0.1016, 0.1016, -GEAR_DEPTH_M),
+    ("Arm_Front_Right", "STRUCTURE", -0.1651, 0.1651, 0.025),
+    ("Arm_Aft_Left", "STRUCTURE", 0.1651, -0.1651, 0.025),
+    ("Arm_Front_Left", "STRUCTURE", -0.1651, -0.1651, 0.025),
+    ("Arm_Aft_Right", "STRUCTURE", 0.1651, 0.1651, 0.025),
+    ("Top", "STRUCTURE", 0.0, 0.0, 0.06),
+)
+# Stiffness and damping that stay stable with one leg touching at 126 Hz (the shipped 3000 N/m
+# and 100 N/(m/s) launch the vehicle on a tilted 1 m/s touchdown); ~2.5 mm static compression.
+_SPRING_N_M = 1000.0
+_DAMPING_N_M_S = 40.0
+
+
+def _gear_xml() -> str:
+    contacts = "".join(
+        f'  <contact name="{name}" type="{kind}">\n'
+        f'    <location unit="M"><x>{x}</x><y>{y}</y><z>{z}</z></location>\n'
+        "    <static_friction>0.8</static_friction><dynamic_friction>0.5</dynamic_friction>\n"
+        "    <rolling_friction>0.5</rolling_friction>\n"
+        f'    <spring_coeff unit="N/M">{_SPRING_N_M}</spring_coeff>\n'
+        f'    <damping_coeff unit="N/M/SEC">{_DAMPING_N_M_S}</damping_coeff>\n'
+        "  </contact>\n"
+        for name, kind, x, y, z in _CONTACTS
+    )
+    return f'<?xml version="1.0"?>\n<ground_reactions>\n{contacts}</ground_reactions>\n'
+
+
+def _load_f450(dt_s: float) -> jsbsim.FGFDMExec:
+    """A quiet JSBSim executive holding the derived F450, with integrators stable on contact."""
+    jsbsim.set_logger(_SilentLogger())
+    root = Path(jsbsim.get_default_root_dir())
+    shipped = root / "aircraft" / "F450"
+    fdm = jsbsim.FGFDMExec(str(root))
+    fdm.set_debug_level(0)
+    with tempfile.TemporaryDirectory(prefix="col-f450-") as tmp:
+        model_dir = Path(tmp) / "F450"
+        model_dir.mkdir()
+        for name in ("Metrics.xml", "Mass.xml", "Propulsion.xml", "Aero.xml"):
+            shutil.copyfile(shipped / name, model_dir / name)
+        (model_dir / "F450.xml").write_text(_TOP_XML)
+        (model_dir / "Gear.xml").write_text(_gear_xml())
+        if not fdm.load_model_with_paths(
+            "F450", tmp, str(root / "engine"), str(root / "systems")
+        ):
+            raise RuntimeError(
+                "JSBSim could not load the F450 model; reinstall the jsbsim package (1.3.x)"
+            )
+    fdm.set_dt(dt_s)
+    # Euler rates + trapezoidal positions: the shipped Adams-Bashforth defaults are unstable on
+    # the legs' contact at this step size; flight itself is unaffected.
+    for name, value in (
+        ("rate/rotational", 1),
+        ("rate/translational", 1),
+        ("position/rotational", 2),
+        ("position/translational", 2),
+    ):
+        fdm[f"simulation/integrator/{name}"] = value
+    for model in ("FGInput", "FGOutput", "FGBuoyantForces", "FGExternalReactions"):
+        fdm[f"simulation/models/{model}/enabled"] = 0
+    return fdm
