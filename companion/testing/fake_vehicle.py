@@ -70,8 +70,6 @@ class FakeVehicle:
     ) -> None:
         self._mav = mavlink.MAVLink(_NullFile(), srcSystem=system_id, srcComponent=component_id)
         self._gcs = mavlink.MAVLink(_NullFile(), srcSystem=255, srcComponent=190)
-        self._parser = mavlink.MAVLink(_NullFile())
-        self._parser.robust_parsing = True
         self.autopilot = FakeAutopilot(self._mav, arm_result)
         self.autopilot.ack_commands = ack_commands
         self.system_id = system_id
@@ -127,6 +125,15 @@ class FakeVehicle:
     @property
     def silent(self) -> bool:
         return self._silent
+
+    def place(self, north_m: float, east_m: float, down_m: float, yaw_rad: float = 0.0) -> None:
+        """Put the vehicle at a pose, at rest (in the air when ``down_m`` < 0), as a SITL reset does."""
+        with self._lock:
+            state = self.autopilot.state
+            state.position_ned_m = [north_m, east_m, min(down_m, 0.0)]
+            state.velocity_ned_m_s = [0.0, 0.0, 0.0]
+            state.yaw_rad = yaw_rad
+            state.landed_state = "IN_AIR" if down_m < 0 else "ON_GROUND"
 
     @property
     def mode(self) -> str:
@@ -277,8 +284,10 @@ class FakeVehicle:
                 self._peers.append(address)
                 if self.heartbeat_enabled:  # greet at once, so a test need not wait a period
                     self._send_all([self.autopilot.heartbeat()])
+            parser = mavlink.MAVLink(_NullFile())  # one per datagram: a torn packet stays in it
+            parser.robust_parsing = True
             try:
-                msgs = self._parser.parse_buffer(data) or []
+                msgs = parser.parse_buffer(data) or []
             except Exception:  # noqa: BLE001 - a fake must survive whatever it is sent
                 self.bad_datagrams += 1
                 return
