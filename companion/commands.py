@@ -219,6 +219,10 @@ class CommandMapper:
             log.warning(
                 "repaired a joystick command %r (%d non-finite -> 0, %d clamped); totals so "
                 "far: %d non-finite, %d clamped axes. Check the policy or input source.",
-                values, issues.non_finite, issues.clamped, c.non_finite_axes, c.clamped_axes,
+                values,
+                issues.non_finite,
+                issues.clamped,
+                c.non_finite_axes,
+                c.clamped_axes,
             )
         self._repairs_logged += 1

@@ -16,7 +16,13 @@ FENCE = Geofence(radius_m=10.0, min_alt_m=-1.0, max_alt_m=20.0, centre_ne_m=(5.0
 
 @pytest.mark.parametrize(
     "position",
-    [(5.0, -5.0, -10.0), (14.9, -5.0, -1.0), (5.0, 4.9, 0.0), (5.0, -5.0, 0.99), (5.0, -5.0, -19.9)],
+    [
+        (5.0, -5.0, -10.0),
+        (14.9, -5.0, -1.0),
+        (5.0, 4.9, 0.0),
+        (5.0, -5.0, 0.99),
+        (5.0, -5.0, -19.9),
+    ],
 )
 def test_inside_positions(position: tuple[float, float, float]) -> None:
     assert FENCE.check(position) == FenceStatus(True)
