@@ -120,6 +120,10 @@ class PilotConfig(Section):
     # The expert's gains, in stick units.
     xy_gain_per_m: float = Field(0.4, ge=0, description="stick per metre of offset from the pad")
     xy_damping_per_m_s: float = Field(0.25, ge=0, description="stick per m/s of ground speed")
+    xy_trim_per_m_s: float = Field(
+        0.15, ge=0, description="stick per metre-second of lasting offset (a pilot's trim)"
+    )
+    xy_trim_max: float = Field(0.3, ge=0, le=1, description="largest trim, in stick units")
     xy_stick_max: float = Field(0.6, gt=0, le=1)
     descent_stick_fast: float = Field(0.8, ge=0, le=1, description="descent when high")
     descent_stick_slow: float = Field(0.3, ge=0, le=1, description="descent near touchdown")
@@ -129,13 +133,15 @@ class PilotConfig(Section):
     )
     centre_tolerance_m: float = Field(0.2, ge=0, description="offset that always counts as centred")
     commit_height_m: float = Field(
-        1.0, ge=0, description="pad lost below this height -> keep landing instead of searching"
-    xy_trim_per_m_s: float = Field(
-        0.15, ge=0, description="stick per metre-second of lasting offset (a pilot's trim)"
+        1.0, ge=0, description="below this height, centred: stop steering by the image, set down"
     )
-    xy_trim_max: float = Field(0.3, ge=0, le=1, description="largest trim, in stick units")
+    commit_off_centre_m: float = Field(
+        0.3, ge=0, description="centred this well below commit_height_m -> set down level"
     )
     search_climb_stick: float = Field(0.3, ge=0, le=1, description="climb while the pad is lost")
+    lost_hold_s: float = Field(
+        0.5, ge=0, description="pad lost shorter than this -> keep the last command (a blink)"
+    )
     # Intervention rule of a synthetic operator (take over ... let go).
     takeover_edge_fraction: float = Field(
         0.8, gt=0, le=1, description="pad this far towards the image edge (0 centre, 1 edge)"
@@ -143,12 +149,12 @@ class PilotConfig(Section):
     takeover_descent_m_s: float = Field(1.5, gt=0, description="descending faster than this")
     takeover_low_height_m: float = Field(2.0, ge=0, description="'low' for the off-centre test")
     takeover_off_centre_m: float = Field(0.6, gt=0, description="off-centre when low")
+    takeover_touchdown_speed_m_s: float = Field(
+        0.4, gt=0, description="ground speed that is too fast once committed to touchdown"
+    )
     release_edge_fraction: float = Field(0.5, gt=0, le=1)
     release_off_centre_m: float = Field(0.3, gt=0)
     release_hold_s: float = Field(1.0, ge=0, description="back on track this long -> let go")
-    lost_hold_s: float = Field(
-        0.5, ge=0, description="pad lost shorter than this -> keep the last command (a blink)"
-    )
     # A ground station's joystick (MAVLink MANUAL_CONTROL).
     manual_override_button: int = Field(0, ge=0, le=31, description="bit of buttons/buttons2")
     manual_timeout_s: float = Field(0.5, gt=0, description="older message -> neutral, no override")

@@ -129,10 +129,9 @@ def test_expert_damps_its_own_speed() -> None:
 
 
 def test_expert_descends_fast_high_slow_low_and_not_when_far_off() -> None:
-    expert = ScriptedExpert(CFG)
-    high = expert.command(obs(pad_at(0.0, 0.0, 8.0)))
-    low = expert.command(obs(pad_at(0.0, 0.0, 1.0)))
-    far_off = expert.command(obs(pad_at(3.0, 0.0, 4.0)))
+    high = ScriptedExpert(CFG).command(obs(pad_at(0.0, 0.0, 8.0)))
+    low = ScriptedExpert(CFG).command(obs(pad_at(0.0, 0.0, 1.2)))
+    far_off = ScriptedExpert(CFG).command(obs(pad_at(3.0, 0.0, 4.0)))
     assert high.throttle == pytest.approx(-CFG.descent_stick_fast)
     assert low.throttle == pytest.approx(-CFG.descent_stick_slow)
     assert far_off.throttle == pytest.approx(0.0)
@@ -272,9 +271,14 @@ def test_intervening_expert_rescues_a_drifting_policy(rng: np.random.Generator) 
 
 
 def test_intervening_expert_leaves_a_good_policy_alone(rng: np.random.Generator) -> None:
-    good = ScriptedExpert(CFG)
     outcomes = [
-        fly_episode(InterveningExpert(CFG), rng, Phase.INTERVENTION, good.command, dropout=0.0)
+        fly_episode(
+            InterveningExpert(CFG),
+            rng,
+            Phase.INTERVENTION,
+            ScriptedExpert(CFG).command,
+            dropout=0.0,
+        )
         for _ in range(5)
     ]
     assert all(o.success for o in outcomes)

@@ -41,21 +41,50 @@ def _stick(value: float, limit: float = 1.0) -> float:
     return float(np.clip(value, -limit, limit))
 
 
+class TouchdownCommit:
+    """Whether the pilot has committed to touchdown, and which views they still trust then.
+
+    Close above the pad it fills the view: the detector sees only its rim or stray blobs
+    (reported as partial), and the estimates jump. A person then ignores such glimpses and
+    sets the vehicle down level; a whole pad in view is still believed. Committed once the
+    pad is seen centred (within ``commit_off_centre_m``) at or below ``commit_height_m``;
+    until reset.
+    """
+
+    def __init__(self, cfg: PilotConfig) -> None:
+        self.height_m = cfg.commit_height_m
+        self.off_centre_m = cfg.commit_off_centre_m
+        self.committed = False
+
+    def reset(self) -> None:
+        self.committed = False
+
+    def update(self, view: PadEstimate | None) -> PadEstimate | None:
+        """The view to act on: None for a partial pad once committed."""
+        if view is not None and view.height_m <= self.height_m:
+            self.committed = self.committed or view.offset_m <= self.off_centre_m
+        if self.committed and view is not None and view.partial:
+            return None
+        return view
+
+
 class ScriptedExpert(HumanInput):
     """Centre over the pad, descend, slow down near touchdown, land. Always holds the override.
 
     Gains are in stick units (per metre of offset, per m/s of speed), as a person would learn
     them for a given vehicle. Memory: a trim that grows while an offset lasts (as a pilot
-    leans on the stick against a drift), and the last height at which the pad was seen, so
-    that losing the pad right above it means "keep landing" rather than "search".
+    leans on the stick against a drift), the last command (a blink of the detector changes
+    nothing), and whether it has committed to touchdown (then it descends level, braking,
+    and no longer looks at the image).
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
         self.cfg = cfg
+        self._commit = TouchdownCommit(cfg)
         self.reset()
 
     def reset(self) -> None:
-        self._last_height_m: float | None = None
+        self._commit.reset()
         self._last_seen_ms: int | None = None
         self._last_command = JoystickCommand.neutral()
         self._trim = np.zeros(2)  # forward, right; stick units
@@ -68,11 +97,13 @@ class ScriptedExpert(HumanInput):
         yaw_rad = float(obs.attitude_rad[2])
         vel = heading_velocity(tuple(obs.velocity_ned_m_s), yaw_rad)  # type: ignore[arg-type]
         now_ms = int(obs.time_boot_ms)
-        view = view_of(obs, self.cfg)
+        view = self._commit.update(view_of(obs, self.cfg))
+        if view is None and self._commit.committed:
+            return self._set_down(vel, -self.cfg.descent_stick_slow)
         if view is None:
             return self._pad_lost(vel, now_ms)
         self._update_trim(view, now_ms)
-        self._last_height_m, self._last_seen_ms = view.height_m, now_ms
+        self._last_seen_ms = now_ms
         pitch = self._steer(view.forward_m, vel[0], self._trim[0])
         roll = self._steer(view.right_m, vel[1], self._trim[1])
         self._last_command = JoystickCommand(roll, pitch, 0.0, -self._descent(view))
@@ -100,16 +131,16 @@ class ScriptedExpert(HumanInput):
         return float(rate * centred)
 
     def _pad_lost(self, vel: np.ndarray, now_ms: int) -> JoystickCommand:
-        """A blink: carry on. Longer: brake; keep landing if the pad was last seen just below,
-        else climb to find it."""
-        c = self.cfg
+        """A blink: carry on. Longer: brake and climb to see more of the ground."""
         seen = self._last_seen_ms
-        if seen is not None and now_ms - seen < c.lost_hold_s * 1000.0:
+        if seen is not None and now_ms - seen < self.cfg.lost_hold_s * 1000.0:
             return self._last_command
+        return self._set_down(vel, self.cfg.search_climb_stick)
+
+    def _set_down(self, vel: np.ndarray, throttle: float) -> JoystickCommand:
+        """Hold position by feel (brake, keep the trim) while climbing or descending."""
         pitch = self._steer(0.0, vel[0], self._trim[0])
         roll = self._steer(0.0, vel[1], self._trim[1])
-        landing = self._last_height_m is not None and self._last_height_m <= c.commit_height_m
-        throttle = -c.descent_stick_slow if landing else c.search_climb_stick
         return JoystickCommand(roll=roll, pitch=pitch, yaw=0.0, throttle=throttle)
 
 
@@ -125,13 +156,15 @@ class RuleState:
 class InterventionRule:
     """When a watching expert takes over, and when they let go.
 
-    Take over at once when any of these is seen: the pad is lost (unless it vanished right
-    below, at touchdown); the pad drifts towards the image edge (``takeover_edge_fraction``);
-    the vehicle descends faster than ``takeover_descent_m_s``; or it is off-centre by more than
-    ``takeover_off_centre_m`` below ``takeover_low_height_m``. Let go once the vehicle has
-    been back on track - pad within ``release_edge_fraction``, descent rate fine, and (when
-    low) within ``release_off_centre_m`` - for ``release_hold_s`` of observation time. The
-    release thresholds are tighter than the take-over ones, so the rule does not chatter.
+    Take over at once when any of these is seen: the vehicle descends faster than
+    ``takeover_descent_m_s``; the pad is lost; the pad drifts towards the image edge
+    (``takeover_edge_fraction``); or it is off-centre by more than ``takeover_off_centre_m``
+    below ``takeover_low_height_m``. Let go once the vehicle has been back on track - descent
+    rate fine, pad within ``release_edge_fraction`` and (when low) within
+    ``release_off_centre_m`` - for ``release_hold_s`` of observation time. The release
+    thresholds are tighter than the take-over ones, so the rule does not chatter. Once the
+    vehicle is committed to touchdown (see :class:`TouchdownCommit`), a partial or missing pad
+    is expected; then sliding faster than ``takeover_touchdown_speed_m_s`` is the danger.
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
@@ -141,15 +174,13 @@ class InterventionRule:
     def reset(self) -> None:
         self._holding = False
         self._on_track_since_ms: int | None = None
-        self._last_height_m: float | None = None
+        self._commit = TouchdownCommit(self.cfg)
         self.takeovers = 0
 
     def update(self, obs: Observation) -> RuleState:
         """Advance the rule by one observation."""
-        view = view_of(obs, self.cfg)
+        view = self._commit.update(view_of(obs, self.cfg))
         danger = self._danger(obs, view)
-        if view is not None:
-            self._last_height_m = view.height_m
         if not self._holding:
             if danger is not None:
                 self._holding, self._on_track_since_ms = True, None
@@ -168,28 +199,29 @@ class InterventionRule:
 
     def _danger(self, obs: Observation, view: PadEstimate | None) -> str | None:
         c = self.cfg
+        vn, ve, vd = (float(v) for v in obs.velocity_ned_m_s)
+        if vd > c.takeover_descent_m_s:
+            return "descending too fast"
+        if view is None and self._commit.committed:
+            if math.hypot(vn, ve) > c.takeover_touchdown_speed_m_s:
+                return "sliding sideways at touchdown"
+            return None  # right above the pad: a glimpse of its rim says little
         if view is None:
-            at_touchdown = (
-                self._last_height_m is not None and self._last_height_m <= c.commit_height_m
-            )
-            return None if at_touchdown else "pad lost"
+            return "pad lost"
         if view.edge_fraction > c.takeover_edge_fraction:
             return "pad near the image edge"
-        if float(obs.velocity_ned_m_s[2]) > c.takeover_descent_m_s:
-            return "descending too fast"
         if view.height_m < c.takeover_low_height_m and view.offset_m > c.takeover_off_centre_m:
             return "off-centre at low height"
         return None
 
     def _on_track(self, obs: Observation, view: PadEstimate | None) -> bool:
+        """Called only when there is no danger: is the vehicle also well placed?"""
         c = self.cfg
         if view is None:
-            return False
+            return self._commit.committed
         low = view.height_m < c.takeover_low_height_m
-        return (
-            view.edge_fraction <= c.release_edge_fraction
-            and float(obs.velocity_ned_m_s[2]) <= c.takeover_descent_m_s
-            and (not low or view.offset_m <= c.release_off_centre_m)
+        return view.edge_fraction <= c.release_edge_fraction and (
+            not low or view.offset_m <= c.release_off_centre_m
         )
 
 
