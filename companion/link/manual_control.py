@@ -8,6 +8,7 @@ message is dropped (and counted by the link) rather than clamped, so garbage nev
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,19 +43,28 @@ def _axis(raw: int) -> float | None:
     return raw / AXIS_LIMIT
 
 
-def parse_manual_control(msg: Any, received_s: float) -> ManualControlInput | None:
-    """The checked input of a pymavlink MANUAL_CONTROL message, or None if it is out of range."""
+def manual_control_from_fields(
+    fields: Mapping[str, Any], source_system: int, source_component: int, received_s: float
+) -> ManualControlInput | None:
+    """The checked input of MANUAL_CONTROL given as field values, or None if out of range."""
     try:
-        axes = [_axis(int(getattr(msg, name))) for name in ("x", "y", "z", "r")]
+        axes = [_axis(int(fields[name])) for name in ("x", "y", "z", "r")]
     except ValueError:
         return None
-    buttons = int(msg.buttons) & 0xFFFF
-    buttons |= (int(getattr(msg, "buttons2", 0) or 0) & 0xFFFF) << 16
+    buttons = int(fields.get("buttons", 0)) & 0xFFFF
+    buttons |= (int(fields.get("buttons2", 0) or 0) & 0xFFFF) << 16
     return ManualControlInput(
         *axes,
         buttons=buttons,
-        target_system=int(msg.target),
-        source_system=msg.get_srcSystem(),
-        source_component=msg.get_srcComponent(),
+        target_system=int(fields.get("target", 0)),
+        source_system=source_system,
+        source_component=source_component,
         received_s=received_s,
+    )
+
+
+def parse_manual_control(msg: Any, received_s: float) -> ManualControlInput | None:
+    """The checked input of a pymavlink MANUAL_CONTROL message, or None if out of range."""
+    return manual_control_from_fields(
+        msg.to_dict(), msg.get_srcSystem(), msg.get_srcComponent(), received_s
     )
