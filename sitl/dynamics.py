@@ -4,9 +4,10 @@ The model is derived from the ``F450`` that the ``jsbsim`` package ships: its me
 propulsion (four DJI E305 motors with 9450 propellers) and aerodynamics are loaded unchanged,
 but its own flight control system and sensor models are left out (our cascade in
 :mod:`sitl.control` replaces them and they cost a third of each step), and its ground contacts
-are made fit for landings: legs soft enough for a stable contact at 126 Hz, skids instead of
-wheels, and contact points at the arm tips and on top so that a vehicle that tips over rests on
-its frame instead of sinking through the ground.
+are made fit for landings: four symmetric legs (the shipped three-point gear pitches the vehicle
+up on every touchdown) soft enough for a stable contact at 126 Hz, skids instead of wheels, and
+contact points at the arm tips and on top so that a vehicle that tips over rests on its frame
+instead of sinking through the ground.
 
 Motor order of ``step(esc)`` (PX4's quad X numbering, motors 1..4):
 ``(front right, aft left, front left, aft right)``; front right and aft left spin
@@ -28,6 +29,8 @@ from pathlib import Path
 
 import jsbsim
 
+from companion.errors import ConfigError, SimulatorError
+
 FT_M = 0.3048
 LBF_N = 4.4482216152605
 GRAVITY_M_S2 = 9.80665
@@ -39,7 +42,7 @@ HOME_ALT_M = 488.0
 
 GEAR_DEPTH_M = 0.1524  # the legs' contact points below the centre of gravity
 MOTOR_ORDER = ("front_right", "aft_left", "front_left", "aft_right")
-HOVER_THROTTLE = 0.426  # ESC command that holds the 1.4 kg F450 still in the air
+HOVER_THROTTLE = 0.416  # ESC command that holds the 1.4 kg F450 still in the air
 
 _WGS84_A_M = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
@@ -53,6 +56,8 @@ _HOME_LON_RAD = math.radians(HOME_LON_DEG)
 
 SPIN_UP_STEPS = 48  # FDM steps to bring the propellers to hover speed (or to a stop) on reset
 SURFACE_TOLERANCE_M = 0.05  # a surface counts as "below" while the feet are above it minus this
+SURFACE_MARGIN_M = 1.0  # above max_surface_height_m plus this, surfaces are not looked up
+MIN_AIRBORNE_S = 0.5  # a contact after less flight than this is a bounce, not a touchdown
 
 
 def ned_to_geodetic(north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
@@ -107,20 +112,29 @@ class Dynamics:
     (e.g. :meth:`sitl.world.World.surface_height_m`); JSBSim's terrain elevation follows it
     under the vehicle, so a roof is as solid as the ground. A surface higher than the vehicle's
     feet is not "below" it: the sides of obstacles are not modelled, only their tops.
+    ``max_surface_height_m`` (optional) promises that no surface is higher: above it the
+    lookup is skipped, which saves its cost in most of the flight.
+
+    :attr:`last_contact` is the latest touchdown after at least ``MIN_AIRBORNE_S`` of flight
+    (bounces do not replace it); ``reset`` clears it.
     """
 
     def __init__(
         self,
         fdm_rate_hz: float = 126.0,
         surface_height_m: Callable[[float, float, float], float] | None = None,
+        max_surface_height_m: float = math.inf,
     ) -> None:
         if not (math.isfinite(fdm_rate_hz) and 60.0 <= fdm_rate_hz <= 1000.0):
-            raise ValueError(f"fdm_rate_hz={fdm_rate_hz!r}: use a rate between 60 and 1000 Hz")
+            raise ConfigError(f"fdm_rate_hz={fdm_rate_hz!r}: use a rate between 60 and 1000 Hz")
         self.dt_s = 1.0 / fdm_rate_hz
         self.home_lat_deg = HOME_LAT_DEG
         self.home_lon_deg = HOME_LON_DEG
         self.home_alt_m = HOME_ALT_M
         self._surface = surface_height_m or flat_ground
+        self._lookup_below_down_m = -(max_surface_height_m + SURFACE_MARGIN_M)
+        self._min_airborne_steps = math.ceil(MIN_AIRBORNE_S * fdm_rate_hz)
+        self._airborne_steps = 0
         self._fdm = _load_f450(self.dt_s)
         self._bind_properties()
         self._time_base_s = 0.0
@@ -167,7 +181,7 @@ class Dynamics:
         """
         values = (*position_ned_m, yaw_rad, *velocity_ned_m_s)
         if len(values) != 7 or not all(math.isfinite(v) for v in values):
-            raise ValueError(
+            raise SimulatorError(
                 f"reset needs a finite 3D position, yaw and 3D velocity; got "
                 f"position={position_ned_m!r}, yaw={yaw_rad!r}, velocity={velocity_ned_m_s!r}"
             )
@@ -188,6 +202,7 @@ class Dynamics:
             self._fdm.run()
         self._apply_initial_conditions()
         self.last_contact = None
+        self._airborne_steps = 0 if on_surface else self._min_airborne_steps
         self._state = self._read_state()
         return self._state
 
@@ -221,17 +236,27 @@ class Dynamics:
         s3(_clip_unit(e3))
         prev = self._state
         north, east, down = prev.position_ned_m
-        surface = self._surface(north, east, prev.time_s)
-        if surface != self._terrain_m and surface <= SURFACE_TOLERANCE_M - down:
-            self._terrain_m = surface
-            self._set_terrain_ft((HOME_ALT_M + surface) / FT_M)
+        if down > self._lookup_below_down_m:
+            self._follow_surface(self._surface(north, east, prev.time_s), down)
         self._fdm.run()
         self._steps += 1
         state = self._read_state()
-        if state.on_ground and not prev.on_ground:
-            self.last_contact = Contact(state.time_s, state.position_ned_m, prev.velocity_ned_m_s)
+        if not state.on_ground:
+            self._airborne_steps += 1
+        elif not prev.on_ground:
+            if self._airborne_steps >= self._min_airborne_steps:
+                self.last_contact = Contact(
+                    state.time_s, state.position_ned_m, prev.velocity_ned_m_s
+                )
+            self._airborne_steps = 0
         self._state = state
         return state
+
+    def _follow_surface(self, surface_m: float, down_m: float) -> None:
+        """Move JSBSim's terrain to the surface below, unless that is above the feet."""
+        if surface_m != self._terrain_m and surface_m <= SURFACE_TOLERANCE_M - down_m:
+            self._terrain_m = surface_m
+            self._set_terrain_ft((HOME_ALT_M + surface_m) / FT_M)
 
     def _read_state(self) -> VehicleState:
         (lat, lon, h, vn, ve, vd, phi, theta, psi, p, q, r, ax, ay, az, wow, fz) = [
@@ -290,7 +315,8 @@ _TOP_XML = """<?xml version="1.0"?>
 
 # (name, type, x, y, z) in JSBSim's structural frame (x aft, y right, z up; metres from the CG).
 _CONTACTS = (
-    ("Front_Center", "BOGEY", -0.1016, 0.0, -GEAR_DEPTH_M),
+    ("Front_Left", "BOGEY", -0.1016, -0.1016, -GEAR_DEPTH_M),
+    ("Front_Right", "BOGEY", -0.1016, 0.1016, -GEAR_DEPTH_M),
     ("Aft_Left", "BOGEY", 0.1016, -0.1016, -GEAR_DEPTH_M),
     ("Aft_Right", "BOGEY", 0.1016, 0.1016, -GEAR_DEPTH_M),
     ("Arm_Front_Right", "STRUCTURE", -0.1651, 0.1651, 0.025),
@@ -336,7 +362,7 @@ def _load_f450(dt_s: float) -> jsbsim.FGFDMExec:
         if not fdm.load_model_with_paths(
             "F450", tmp, str(root / "engine"), str(root / "systems")
         ):
-            raise RuntimeError(
+            raise SimulatorError(
                 "JSBSim could not load the F450 model; reinstall the jsbsim package (1.3.x)"
             )
     fdm.set_dt(dt_s)
