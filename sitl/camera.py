@@ -27,6 +27,7 @@ from sitl.world import World
 # Camera axes (right, down, optical) expressed in body FRD axes: u = body +y, v = body -x.
 CAM_FROM_BODY = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 _MIN_DEPTH_M = 1e-3
+_MIN_HEIGHT_M = 0.02
 _WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
 
 # Colours (BGR). The pad is a saturated magenta no ground, roof or sky colour comes near in hue.
@@ -49,7 +50,7 @@ class TexturePyramid:
     Texel (row 0, col 0) has the same centre at every level (``cv2.pyrDown`` keeps even samples).
     """
 
-    levels: tuple[np.ndarray, ...]
+    levels: tuple[np.ndarray, ...]  # BGRA: OpenCV warps 4-channel images about twice as fast
     base_texel_m: float
 
     def texel_m(self, level: int) -> float:
@@ -77,6 +78,7 @@ def _periodic_noise(rng: np.random.Generator, n: int, cycles: float) -> np.ndarr
 
 
 def _pyramid(base: np.ndarray, count: int, wrap: bool) -> tuple[np.ndarray, ...]:
+    """``count`` BGRA levels of a BGR image, each half the size of the one before."""
     levels = [base]
     for _ in range(count - 1):
         src = levels[-1]
@@ -85,7 +87,7 @@ def _pyramid(base: np.ndarray, count: int, wrap: bool) -> tuple[np.ndarray, ...]
             levels.append(np.ascontiguousarray(cv2.pyrDown(padded)[2:-2, 2:-2]))
         else:
             levels.append(cv2.pyrDown(src))
-    return tuple(levels)
+    return tuple(cv2.cvtColor(level, cv2.COLOR_BGR2BGRA) for level in levels)
 
 
 def ground_pyramid(seed: int) -> TexturePyramid:
@@ -171,14 +173,15 @@ class CameraRenderer:
 
     def render(self, position_ned_m, attitude_rad, t_s: float) -> np.ndarray:
         """The camera image at pose (NED position, roll/pitch/yaw) and world time ``t_s``."""
-        pos = np.asarray(position_ned_m, dtype=float)
-        if not (np.all(np.isfinite(pos)) and pos[2] < 0.0):
-            raise ValueError(f"camera position {pos} must be finite and above the ground (z < 0)")
+        pos = np.array(position_ned_m, dtype=float)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(np.asarray(attitude_rad, dtype=float)))):
+            raise ValueError(f"camera pose must be finite, got position {pos} attitude {attitude_rad}")
+        pos[2] = min(pos[2], -_MIN_HEIGHT_M)  # on (or numerically under) the ground: look from just above it
         proj = self.world_to_image(pos, attitude_rad)
         image = self._draw_ground(proj, pos)
         self._draw_sky(image, proj)
         self._draw_vehicle(image, proj, pos, t_s)
-        return image
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
 
     def _plane_homography(self, proj: np.ndarray, pyr: TexturePyramid, level: int, origin_ne, z_m: float) -> np.ndarray:
         """Texture pixel (col, row, 1) of a horizontal plane at depth ``z_m`` -> image pixel."""
@@ -188,16 +191,24 @@ class CameraRenderer:
         return proj @ plane
 
     def _draw_ground(self, proj: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        """The ground, warped at 1/n resolution (n = ground_downsample) and scaled up: it is only
+        background, and the warp is the largest cost of a frame."""
+        n = self.cfg.ground_downsample
         pyr = self.ground
-        level = pyr.level_for(-pos[2] / self.fx)
+        level = pyr.level_for(-pos[2] * n / self.fx)
         tile_m = pyr.size_m[0]
         # Centre one repeat of the tile under the camera: most samples then need no wrapping.
         origin = (np.round(pos[0] / tile_m) * tile_m + tile_m / 2, np.round(pos[1] / tile_m) * tile_m - tile_m / 2)
-        h = self._plane_homography(proj, pyr, level, origin, 0.0)
-        return cv2.warpPerspective(
-            pyr.levels[level], np.linalg.inv(h), (self.width_px, self.height_px),
-            flags=_WARP_FLAGS, borderMode=cv2.BORDER_WRAP,
+        # Full-resolution pixel x -> reduced pixel (x + 0.5) / n - 0.5 (cv2.resize's convention).
+        shrink = np.array([[1.0 / n, 0.0, 0.5 / n - 0.5], [0.0, 1.0 / n, 0.5 / n - 0.5], [0.0, 0.0, 1.0]])
+        h = shrink @ self._plane_homography(proj, pyr, level, origin, 0.0)
+        small = (-(-self.width_px // n), -(-self.height_px // n))
+        ground = cv2.warpPerspective(
+            pyr.levels[level], np.linalg.inv(h), small, flags=_WARP_FLAGS, borderMode=cv2.BORDER_WRAP
         )
+        if n == 1:
+            return ground
+        return cv2.resize(ground, (self.width_px, self.height_px), interpolation=cv2.INTER_LINEAR)
 
     def _draw_sky(self, image: np.ndarray, proj: np.ndarray) -> None:
         """Paint pixels whose ray never meets the ground (only when the horizon is in view)."""
@@ -209,7 +220,7 @@ class CameraRenderer:
             return
         poly = _clip_polygon_half_plane(corners, ray_down)
         if len(poly) >= 3:
-            cv2.fillConvexPoly(image, np.round(poly * 16).astype(np.int32), SKY_BGR, cv2.LINE_AA, 4)
+            cv2.fillConvexPoly(image, np.round(poly * 16).astype(np.int32), (*SKY_BGR, 255), cv2.LINE_AA, 4)
 
     def _draw_vehicle(self, image: np.ndarray, proj: np.ndarray, pos: np.ndarray, t_s: float) -> None:
         wc = self.world.cfg
@@ -227,8 +238,9 @@ class CameraRenderer:
         if not _overlaps_image(uv, self.width_px, self.height_px):
             return
         hull = cv2.convexHull(np.round(uv * 16).astype(np.int32))
-        cv2.fillConvexPoly(image, hull, SIDE_BGR, cv2.LINE_AA, 4)
-        self._draw_roof(image, proj, pos, uv[:4], centre_ne, roof_z)
+        cv2.fillConvexPoly(image, hull, (*SIDE_BGR, 255), cv2.LINE_AA, 4)
+        if pos[2] < roof_z:  # the roof is seen only from above it
+            self._draw_roof(image, proj, pos, uv[:4], centre_ne, roof_z)
 
     def _draw_roof(self, image, proj, pos, roof_uv, centre_ne, roof_z: float) -> None:
         """Warp the roof texture into the roof's bounding box only (cheap), keeping what is outside."""

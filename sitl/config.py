@@ -89,6 +89,9 @@ class CameraConfig(Section):
     )
     texture_seed: int = Field(0, description="seed of the procedural ground texture")
     pad_dot_radius_m: float = Field(0.1, gt=0, description="white centre dot of the pad's marking")
+    ground_downsample: int = Field(
+        2, ge=1, le=4, description="render the ground at 1/n resolution, then scale up (vehicle and pad: full)"
+    )
 
 
 class SitlConfig(Section):

@@ -123,6 +123,14 @@ def test_horizon_shows_sky_above_it(renderer: CameraRenderer) -> None:
     assert np.abs(image[-2, 160].astype(int) - SKY_BGR).max() > 30
 
 
-def test_render_refuses_a_camera_below_ground(renderer: CameraRenderer) -> None:
-    with pytest.raises(ValueError, match="above the ground"):
-        renderer.render([0.0, 0.0, 0.5], [0, 0, 0], 0.0)
+def test_camera_on_or_under_the_ground_still_renders(renderer: CameraRenderer) -> None:
+    landed = renderer.render([20.0, 0.0, 0.0], [0, 0, 0], 0.0)
+    np.testing.assert_array_equal(landed, renderer.render([20.0, 0.0, 0.01], [0, 0, 0], 0.0))
+    assert landed.std() > 0.5
+
+
+def test_render_refuses_a_non_finite_pose(renderer: CameraRenderer) -> None:
+    with pytest.raises(ValueError, match="finite"):
+        renderer.render([0.0, float("nan"), -3.0], [0, 0, 0], 0.0)
+    with pytest.raises(ValueError, match="finite"):
+        renderer.render([0.0, 0.0, -3.0], [0, float("inf"), 0], 0.0)
