@@ -158,6 +158,19 @@ def test_expert_pad_lost_blink_then_climb_or_land() -> None:
     assert expert.command(obs(None, t_ms=1000)).throttle == pytest.approx(-CFG.descent_stick_slow)
 
 
+def test_expert_commits_to_touchdown_and_ignores_partial_glimpses() -> None:
+    expert = ScriptedExpert(CFG)
+    expert.command(obs(pad_at(0.1, 0.0, 0.9), t_ms=0))  # centred, below commit height
+    stray = PadDetection(W_PX - 1.0, 0.0, 14.0, True)  # a stray blob in the corner
+    cmd = expert.command(obs(stray, t_ms=100))
+    assert cmd == JoystickCommand(0.0, 0.0, 0.0, -CFG.descent_stick_slow)
+    assert expert.command(obs(None, t_ms=1000)).throttle == -CFG.descent_stick_slow
+    whole = expert.command(obs(pad_at(0.3, 0.0, 0.8), t_ms=1100))  # a whole pad is believed
+    assert whole.pitch > 0
+    expert.reset()
+    assert expert.command(obs(stray, t_ms=0)).pitch > 0  # not committed: steers to it
+
+
 def test_expert_always_holds_override() -> None:
     assert ScriptedExpert(CFG).read(obs(pad_at(0.0, 0.0, 5.0))).override_held
     assert ScriptedExpert(CFG).read(obs(None)).override_held
@@ -329,6 +342,9 @@ def test_rule_accepts_losing_the_pad_right_below_at_touchdown() -> None:
     rule = InterventionRule(CFG)
     assert not rule.update(obs(pad_at(0.0, 0.0, 0.7), t_ms=0)).holding
     assert not rule.update(obs(None, t_ms=100)).holding
+    assert not rule.update(obs(PadDetection(2.0, 3.0, 150.0, True), t_ms=200)).holding
+    state = rule.update(obs(None, velocity=(0.6, 0.0, 0.3), t_ms=300))
+    assert state.holding and state.reason is not None and "sliding" in state.reason
 
 
 # --- MANUAL_CONTROL ----------------------------------------------------------------------------
