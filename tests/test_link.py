@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.config import LinkConfig
 from companion.errors import CommandRejected, ConfigError, LinkLost, LinkTimeout
-from companion.link import ManualControlInput, VehicleSnapshot, open_link, px4_modes
+from companion.link import ManualControlMessage, VehicleSnapshot, open_link, px4_modes
 from companion.link.connection import parse_connection
 from companion.link.mavlink_link import MavlinkLink
 from companion.setpoints import VelocitySetpoint
@@ -309,20 +309,37 @@ def test_calls_before_connect_and_after_close_raise_link_lost(fake, make_link) -
 # ------------------------------------------------------------------ MANUAL_CONTROL
 def test_manual_control_reaches_the_callback_normalised(fake, make_link) -> None:
     link = make_link()
-    got: list[ManualControlInput] = []
+    got: list[ManualControlMessage] = []
     link.on_manual_control(got.append)
     fake.send_manual_control(x=500, y=-1000, z=1000, r=250, buttons=0b101, buttons2=0b1)
     assert _until(lambda: len(got) == 1)
     value = got[0]
-    assert (value.x, value.y, value.z, value.r) == (0.5, -1.0, 1.0, 0.25)
+    assert [value.axis(a) for a in "xyzr"] == [0.5, -1.0, 1.0, 0.25]
     assert value.pressed(0) and value.pressed(2) and not value.pressed(1)
     assert value.pressed(16)  # buttons2 bit 0
     assert value.source_system == 255
+    assert value.fields() == {
+        "x": 500, "y": -1000, "z": 1000, "r": 250, "buttons": 0b101, "buttons2": 1, "target": 1
+    }  # fmt: skip
+
+
+def test_manual_control_feeds_the_ground_station_input_source(fake, make_link) -> None:
+    from companion.config import PilotConfig
+    from companion.inputs.manual_control import ManualControlInput
+
+    source = ManualControlInput(PilotConfig(manual_override_button=1))
+    link = make_link()
+    link.on_manual_control(lambda message: source.feed(message.fields()))
+    fake.send_manual_control(x=1000, y=-500, z=1000, r=0, buttons=0b10)
+    assert _until(lambda: source.counts.messages == 1)
+    human = source.read()
+    assert human.override_held
+    assert (human.command.pitch, human.command.roll, human.command.throttle) == (1.0, -0.5, 1.0)
 
 
 def test_manual_control_out_of_range_is_dropped_and_counted(fake, make_link) -> None:
     link = make_link()
-    got: list[ManualControlInput] = []
+    got: list[ManualControlMessage] = []
     link.on_manual_control(got.append)
     fake.send_manual_control(x=1001)
     fake.send_manual_control(r=-20000)
@@ -330,13 +347,13 @@ def test_manual_control_out_of_range_is_dropped_and_counted(fake, make_link) -> 
     fake.send_manual_control(target=42)  # for another system: ignored
     assert _until(lambda: link.stats().manual_control_received == 4)
     assert link.stats().manual_control_dropped == 2
-    assert len(got) == 1 and got[0].z is None and got[0].x == 0.0
+    assert len(got) == 1 and got[0].axis("z") is None and got[0].axis("x") == 0.0
 
 
 def test_a_failing_callback_does_not_stop_the_link(fake, make_link) -> None:
     link = make_link()
 
-    def broken(_value: ManualControlInput) -> None:
+    def broken(_value: ManualControlMessage) -> None:
         raise RuntimeError("consumer bug")
 
     link.on_manual_control(broken)

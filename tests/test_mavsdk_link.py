@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.config import LinkConfig
 from companion.errors import CommandRejected, ConfigError, LinkLost
-from companion.link import ManualControlInput, open_link
+from companion.link import ManualControlMessage, open_link
 from companion.link.mavsdk_link import MavsdkLink, mavsdk_url
 from companion.setpoints import VelocitySetpoint
 from companion.testing import FakeVehicle
@@ -92,7 +92,7 @@ def test_modes_mavsdk_cannot_select_are_refused(link) -> None:
 
 
 def test_manual_control_from_a_ground_station_reaches_the_callback(fake, link) -> None:
-    got: list[ManualControlInput] = []
+    got: list[ManualControlMessage] = []
     link.on_manual_control(got.append)
     # A ground station streams; the link picks up a new sender within about half a second.
     deadline = time.monotonic() + 3.0
@@ -100,7 +100,7 @@ def test_manual_control_from_a_ground_station_reaches_the_callback(fake, link) -
         fake.send_manual_control(x=-250, y=1000, z=0, r=0, buttons=0b10)
         fake.send_manual_control(x=5000)  # out of range: dropped
         time.sleep(0.05)
-    assert got and (got[-1].x, got[-1].y, got[-1].buttons) == (-0.25, 1.0, 0b10)
+    assert got and (got[-1].axis("x"), got[-1].axis("y"), got[-1].buttons) == (-0.25, 1.0, 0b10)
     assert link.stats().manual_control_dropped >= 1
 
 

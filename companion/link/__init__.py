@@ -12,14 +12,14 @@ from typing import Literal
 from companion.config import LinkConfig
 from companion.errors import ConfigError
 from companion.link.base import LinkStats, SetpointLimits, VehicleLink, VehicleSnapshot
-from companion.link.manual_control import ManualControlInput
+from companion.link.manual_control import ManualControlMessage
 from companion.setpoints import VelocitySetpoint
 
 LinkKind = Literal["pymavlink", "mavsdk"]
 
 __all__ = [
     "LinkStats",
-    "ManualControlInput",
+    "ManualControlMessage",
     "SetpointLimits",
     "VehicleLink",
     "VehicleSnapshot",

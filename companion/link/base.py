@@ -12,11 +12,11 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from companion.link.manual_control import ManualControlInput
+from companion.link.manual_control import ManualControlMessage
 from companion.setpoints import VelocitySetpoint
 
 Vec3 = tuple[float, float, float]
-ManualControlCallback = Callable[[ManualControlInput], None]
+ManualControlCallback = Callable[[ManualControlMessage], None]
 
 LANDED_STATES = ("UNDEFINED", "ON_GROUND", "IN_AIR", "TAKEOFF", "LANDING")
 

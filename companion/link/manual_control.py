@@ -1,9 +1,11 @@
-"""MANUAL_CONTROL from a ground station, checked and normalised for a human-input source.
+"""MANUAL_CONTROL from a ground station, checked before a human-input source sees it.
 
 MAVLink defines x = pitch (forward +), y = roll (right +), z = thrust, r = yaw (clockwise +),
 each in -1000..1000 (QGroundControl and MAVProxy send thrust 0..1000), and ``INT16_MAX``
 for an axis that is not in use. Values outside that range mean a broken sender: the whole
 message is dropped (and counted by the link) rather than clamped, so garbage never steers.
+What passes is handed on in MAVLink's own units (:meth:`ManualControlMessage.fields`), so the
+input source decides the mapping (throttle range, override button) from its config.
 """
 
 from __future__ import annotations
@@ -14,57 +16,69 @@ from typing import Any
 
 AXIS_LIMIT = 1000
 AXIS_UNUSED = 32767  # INT16_MAX: "this axis is invalid/unused"
+AXES = ("x", "y", "z", "r")
 
 
 @dataclass(frozen=True)
-class ManualControlInput:
-    """One MANUAL_CONTROL message; axes scaled to [-1, 1], ``None`` when the sender marks it unused."""
+class ManualControlMessage:
+    """One checked MANUAL_CONTROL: raw axes in -1000..1000 or AXIS_UNUSED, 32 button bits."""
 
-    x: float | None
-    y: float | None
-    z: float | None
-    r: float | None
-    buttons: int  # bit i = button i pressed; buttons 16..31 come from MAVLink 2's buttons2
+    x: int
+    y: int
+    z: int
+    r: int
+    buttons: int  # bit i = button i held; bits 16..31 come from MAVLink 2's buttons2
     target_system: int
     source_system: int
     source_component: int
     received_s: float  # monotonic
 
+    def __post_init__(self) -> None:
+        for name in AXES:
+            value = getattr(self, name)
+            if value != AXIS_UNUSED and not -AXIS_LIMIT <= value <= AXIS_LIMIT:
+                raise ValueError(f"MANUAL_CONTROL {name}={value} outside -1000..1000")
+
+    def axis(self, name: str) -> float | None:
+        """Axis ``name`` ("x", "y", "z", "r") scaled to [-1, 1]; None when not in use."""
+        raw = getattr(self, name)
+        return None if raw == AXIS_UNUSED else raw / AXIS_LIMIT
+
     def pressed(self, button: int) -> bool:
-        """Whether button number ``button`` (0-based) is held."""
+        """Whether button number ``button`` (0-31) is held."""
         return bool(self.buttons >> button & 1)
 
-
-def _axis(raw: int) -> float | None:
-    if raw == AXIS_UNUSED:
-        return None
-    if not -AXIS_LIMIT <= raw <= AXIS_LIMIT:
-        raise ValueError(raw)
-    return raw / AXIS_LIMIT
+    def fields(self) -> dict[str, int]:
+        """The message's fields by MAVLink name (for ``inputs.ManualControlInput.feed``)."""
+        return {
+            "x": self.x, "y": self.y, "z": self.z, "r": self.r,
+            "buttons": self.buttons & 0xFFFF, "buttons2": self.buttons >> 16,
+            "target": self.target_system,
+        }  # fmt: skip
 
 
 def manual_control_from_fields(
     fields: Mapping[str, Any], source_system: int, source_component: int, received_s: float
-) -> ManualControlInput | None:
-    """The checked input of MANUAL_CONTROL given as field values, or None if out of range."""
+) -> ManualControlMessage | None:
+    """The checked message from its field values, or None if an axis is out of range."""
     try:
-        axes = [_axis(int(fields[name])) for name in ("x", "y", "z", "r")]
-    except ValueError:
+        axes = [int(fields[name]) for name in AXES]
+        buttons = int(fields.get("buttons", 0)) & 0xFFFF
+        buttons |= (int(fields.get("buttons2", 0) or 0) & 0xFFFF) << 16
+        return ManualControlMessage(
+            *axes,
+            buttons=buttons,
+            target_system=int(fields.get("target", 0)),
+            source_system=source_system,
+            source_component=source_component,
+            received_s=received_s,
+        )
+    except (KeyError, TypeError, ValueError):
         return None
-    buttons = int(fields.get("buttons", 0)) & 0xFFFF
-    buttons |= (int(fields.get("buttons2", 0) or 0) & 0xFFFF) << 16
-    return ManualControlInput(
-        *axes,
-        buttons=buttons,
-        target_system=int(fields.get("target", 0)),
-        source_system=source_system,
-        source_component=source_component,
-        received_s=received_s,
-    )
 
 
-def parse_manual_control(msg: Any, received_s: float) -> ManualControlInput | None:
-    """The checked input of a pymavlink MANUAL_CONTROL message, or None if out of range."""
+def parse_manual_control(msg: Any, received_s: float) -> ManualControlMessage | None:
+    """The checked message of a pymavlink MANUAL_CONTROL, or None if it is out of range."""
     return manual_control_from_fields(
         msg.to_dict(), msg.get_srcSystem(), msg.get_srcComponent(), received_s
     )
