@@ -58,6 +58,32 @@ class AutopilotConfig(Section):
     takeoff_alt_m: float = Field(2.5, gt=0)
     offboard_loss_hold_s: float = Field(0.5, gt=0, description="no setpoint for this long -> hold")
     offboard_loss_land_s: float = Field(5.0, gt=0, description="then after this much more -> land")
+    # Cascade gains (sitl/control.py), tuned on the JSBSim F450 at 126 Hz.
+    pos_p_xy: float = Field(1.0, ge=0, description="position -> velocity, 1/s")
+    pos_p_z: float = Field(1.5, ge=0, description="position -> velocity, 1/s")
+    vel_p_xy: float = Field(3.5, ge=0, description="velocity error -> acceleration, 1/s")
+    vel_i_xy: float = Field(1.0, ge=0, description="1/s^2")
+    vel_i_max_xy_m_s2: float = Field(2.0, ge=0)
+    vel_p_z: float = Field(4.0, ge=0, description="1/s")
+    vel_i_z: float = Field(3.0, ge=0, description="1/s^2")
+    vel_i_max_z_m_s2: float = Field(4.0, ge=0)
+    vel_i_zone_m_s: float = Field(
+        0.3, ge=0, description="velocity integrators run only while the error is below this"
+    )
+    att_p_rp: float = Field(7.0, ge=0, description="roll/pitch error -> Euler rate, 1/s")
+    att_p_yaw: float = Field(3.0, ge=0, description="yaw error -> yaw rate, 1/s")
+    max_rate_rp_rad_s: float = Field(3.5, gt=0)
+    rate_p_rp: float = Field(0.08, ge=0, description="rate error -> normalised torque, s/rad")
+    rate_i_rp: float = Field(0.2, ge=0)
+    rate_d_rp: float = Field(0.002, ge=0)
+    rate_i_max: float = Field(0.1, ge=0)
+    rate_p_yaw: float = Field(0.3, ge=0)
+    rate_i_yaw: float = Field(0.3, ge=0)
+    rate_i_max_yaw: float = Field(0.1, ge=0)
+    hover_throttle: float = Field(0.415, gt=0, lt=1, description="ESC command that hovers")
+    thrust_curve_quadratic: float = Field(
+        0.54, gt=0, le=1, description="thrust/weight = q x^2 + (1-q) x, x = throttle/hover"
+    )
 
 
 class WorldConfig(Section):

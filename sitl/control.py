@@ -1,0 +1,281 @@
+"""The simulated autopilot's flight control cascade, as in PX4's multicopter stack.
+
+position P -> velocity PID -> desired acceleration -> roll/pitch (tilt-limited) and collective
+thrust (hover- and tilt-compensated) -> attitude P -> body-rate PID -> quad-X mixer -> ESCs.
+
+Everything runs at the FDM rate on plain floats: this loop and the FDM step must together run
+hundreds of times faster than real time.
+
+Mixer (motor order of :mod:`sitl.dynamics`, PX4's quad X): ``(front right, aft left,
+front left, aft right)``; a positive roll/pitch/yaw command is a positive torque about the body
+x (right wing down) / y (nose up) / z (nose right) axis:
+
+==========  ====  =====  ===
+motor       roll  pitch  yaw
+==========  ====  =====  ===
+front right  -1    +1    +1  (spins counter-clockwise)
+aft left     +1    -1    +1  (counter-clockwise)
+front left   +1    +1    -1  (clockwise)
+aft right    -1    -1    -1  (clockwise)
+==========  ====  =====  ===
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sitl.config import AutopilotConfig
+from sitl.dynamics import GRAVITY_M_S2, VehicleState
+
+NAN = math.nan
+NAN3 = (NAN, NAN, NAN)
+MOTOR_ROLL = (-1.0, 1.0, 1.0, -1.0)
+MOTOR_PITCH = (1.0, -1.0, 1.0, -1.0)
+MOTOR_YAW = (1.0, 1.0, -1.0, -1.0)
+ESC_OFF = (0.0, 0.0, 0.0, 0.0)
+MIN_LIFT_RATIO = 0.25  # never ask for less than this fraction of weight: keeps control authority
+MAX_LIFT_RATIO = 2.5
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """What the vehicle should do; a NaN component means "not controlled on this axis".
+
+    Per NED axis: position if set (velocity then acts as feed-forward), else velocity, else
+    hold velocity 0. Heading: yaw if set, else yaw rate, else hold (rate 0).
+    """
+
+    position_ned_m: tuple[float, float, float] = NAN3
+    velocity_ned_m_s: tuple[float, float, float] = NAN3
+    yaw_rad: float = NAN
+    yaw_rate_rad_s: float = NAN
+
+    def __post_init__(self) -> None:
+        if len(self.position_ned_m) != 3 or len(self.velocity_ned_m_s) != 3:
+            raise ValueError("Setpoint position and velocity must have 3 components (N, E, D)")
+
+
+HOLD = Setpoint()
+
+
+def _finite(x: float, default: float) -> float:
+    return x if x - x == 0.0 else default  # NaN and +-inf fail x - x == 0
+
+
+def _clamp(x: float, low: float, high: float) -> float:
+    return low if x < low else high if x > high else x
+
+
+def _wrap_pi(angle_rad: float) -> float:
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def mix(
+    collective: float, roll: float, pitch: float, yaw: float
+) -> tuple[float, float, float, float]:
+    """Quad-X mixer with saturation handling: attitude first, then thrust, then yaw.
+
+    Roll and pitch are scaled down together if their spread alone exceeds the ESC range;
+    the collective is then shifted so no motor leaves [0, 1]; yaw gets what room is left.
+    """
+    d0, d1, d2, d3 = -roll + pitch, roll - pitch, roll + pitch, -roll - pitch
+    spread = max(d0, d1, d2, d3) - min(d0, d1, d2, d3)
+    if spread > 1.0:
+        d0, d1, d2, d3 = d0 / spread, d1 / spread, d2 / spread, d3 / spread
+    low, high = -min(d0, d1, d2, d3), 1.0 - max(d0, d1, d2, d3)
+    t = _clamp(collective, low, high)
+    m0, m1, m2, m3 = t + d0, t + d1, t + d2, t + d3
+    # yaw adds to m0, m1 and subtracts from m2, m3: keep all four within [0, 1]
+    yaw = _clamp(yaw, max(-m0, -m1, m2 - 1.0, m3 - 1.0), min(1.0 - m0, 1.0 - m1, m2, m3))
+    return m0 + yaw, m1 + yaw, m2 - yaw, m3 - yaw
+
+
+def throttle_for_lift(lift_ratio: float, hover_throttle: float, quadratic: float) -> float:
+    """ESC command whose thrust is ``lift_ratio`` times the weight.
+
+    Thrust curve model: ratio = q x^2 + (1 - q) x with x = throttle / hover_throttle.
+    """
+    q = quadratic
+    x = (math.sqrt((1.0 - q) ** 2 + 4.0 * q * lift_ratio) - (1.0 - q)) / (2.0 * q)
+    return x * hover_throttle
+
+
+class FlightController:
+    """The cascade, from a :class:`Setpoint` to four ESC commands, at a fixed step ``dt_s``."""
+
+    def __init__(self, cfg: AutopilotConfig, dt_s: float) -> None:
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ValueError(f"dt_s={dt_s!r}: the controller needs a positive, finite time step")
+        self.cfg = cfg
+        self.dt_s = dt_s
+        self._tan_tilt = math.tan(cfg.max_tilt_rad)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget integrators and filter memory (on arming, mode changes, resets)."""
+        self._vel_int = [0.0, 0.0, 0.0]
+        self._rate_int = [0.0, 0.0, 0.0]
+        self._prev_rates = (0.0, 0.0, 0.0)
+        self.lift_ratio = 1.0  # last collective thrust asked for, as a fraction of weight
+        self.collective = 0.0  # last collective ESC command (before mixing)
+
+    def update(
+        self, state: VehicleState, sp: Setpoint, armed: bool
+    ) -> tuple[float, float, float, float]:
+        """ESC commands for this step; all zero when disarmed."""
+        if not armed:
+            self.reset()
+            return ESC_OFF
+        vel_cmd = self._velocity_command(state, sp)
+        accel = self._acceleration(state, vel_cmd)
+        roll_sp, pitch_sp, collective = self._attitude_and_thrust(state, accel)
+        rates_sp = self._rates(state, roll_sp, pitch_sp, self._yaw_rate(state, sp))
+        torque = self._rate_loop(state, rates_sp)
+        return mix(collective, *torque)
+
+    def _velocity_command(self, state: VehicleState, sp: Setpoint) -> tuple[float, float, float]:
+        """Position P plus feed-forward per axis, limited to the configured speeds."""
+        cfg = self.cfg
+        (pn, pe, pd), (tn, te, td) = state.position_ned_m, sp.position_ned_m
+        fn, fe, fd = sp.velocity_ned_m_s
+        fn, fe, fd = _finite(fn, 0.0), _finite(fe, 0.0), _finite(fd, 0.0)
+        vn = cfg.pos_p_xy * (tn - pn) + fn if tn - tn == 0.0 else fn
+        ve = cfg.pos_p_xy * (te - pe) + fe if te - te == 0.0 else fe
+        vd = cfg.pos_p_z * (td - pd) + fd if td - td == 0.0 else fd
+        speed = math.hypot(vn, ve)
+        if speed > cfg.max_speed_xy_m_s:
+            scale = cfg.max_speed_xy_m_s / speed
+            vn, ve = vn * scale, ve * scale
+        return vn, ve, _clamp(vd, -cfg.max_speed_up_m_s, cfg.max_speed_down_m_s)
+
+    def _acceleration(
+        self, state: VehicleState, vel_cmd: tuple[float, float, float]
+    ) -> tuple[float, float, float]:
+        """Velocity PI -> desired NED acceleration.
+
+        Integrators only run near the setpoint (so a step does not wind them up into a slow
+        overshoot) and freeze while touching a surface, where contact forces would.
+        """
+        cfg, dt, vi = self.cfg, self.dt_s, self._vel_int
+        vn, ve, vd = state.velocity_ned_m_s
+        en, ee, ed = vel_cmd[0] - vn, vel_cmd[1] - ve, vel_cmd[2] - vd
+        zone = cfg.vel_i_zone_m_s
+        if not state.on_ground and en * en + ee * ee + ed * ed < zone * zone:
+            lim_xy, lim_z = cfg.vel_i_max_xy_m_s2, cfg.vel_i_max_z_m_s2
+            vi[0] = _clamp(vi[0] + cfg.vel_i_xy * en * dt, -lim_xy, lim_xy)
+            vi[1] = _clamp(vi[1] + cfg.vel_i_xy * ee * dt, -lim_xy, lim_xy)
+            vi[2] = _clamp(vi[2] + cfg.vel_i_z * ed * dt, -lim_z, lim_z)
+        return (
+            cfg.vel_p_xy * en + vi[0],
+            cfg.vel_p_xy * ee + vi[1],
+            cfg.vel_p_z * ed + vi[2],
+        )
+
+    def _attitude_and_thrust(
+        self, state: VehicleState, accel: tuple[float, float, float]
+    ) -> tuple[float, float, float]:
+        """Roll and pitch that point the thrust along ``accel - g``, and the collective."""
+        cfg = self.cfg
+        an, ae, ad = accel
+        lift = _clamp(
+            GRAVITY_M_S2 - ad, MIN_LIFT_RATIO * GRAVITY_M_S2, MAX_LIFT_RATIO * GRAVITY_M_S2
+        )
+        horizontal = math.hypot(an, ae)
+        max_horizontal = lift * self._tan_tilt
+        if horizontal > max_horizontal:
+            scale = max_horizontal / horizontal
+            an, ae = an * scale, ae * scale
+        roll, pitch, yaw = state.attitude_rad
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        forward, right = cy * an + sy * ae, cy * ae - sy * an
+        pitch_sp = math.atan2(-forward, lift)
+        roll_sp = math.atan2(right, math.hypot(forward, lift))
+        # tilt compensation with the attitude actually flown (as PX4 does)
+        tilt_cos = max(math.cos(roll) * math.cos(pitch), 0.5)
+        self.lift_ratio = lift / (GRAVITY_M_S2 * tilt_cos)
+        self.collective = throttle_for_lift(
+            self.lift_ratio, cfg.hover_throttle, cfg.thrust_curve_quadratic
+        )
+        return roll_sp, pitch_sp, self.collective
+
+    def _yaw_rate(self, state: VehicleState, sp: Setpoint) -> float:
+        limit = self.cfg.max_yaw_rate_rad_s
+        yaw_sp = sp.yaw_rad
+        if yaw_sp - yaw_sp == 0.0:
+            rate = self.cfg.att_p_yaw * _wrap_pi(yaw_sp - state.attitude_rad[2])
+        else:
+            rate = _finite(sp.yaw_rate_rad_s, 0.0)
+        return _clamp(rate, -limit, limit)
+
+    def _rates(
+        self, state: VehicleState, roll_sp: float, pitch_sp: float, yaw_rate_sp: float
+    ) -> tuple[float, float, float]:
+        """Attitude P on Euler angles, turned into body rates by the Euler kinematics."""
+        cfg = self.cfg
+        roll, pitch, _ = state.attitude_rad
+        roll_dot = cfg.att_p_rp * (roll_sp - roll)
+        pitch_dot = cfg.att_p_rp * (pitch_sp - pitch)
+        sr, cr = math.sin(roll), math.cos(roll)
+        sp_, cp = math.sin(pitch), math.cos(pitch)
+        limit = cfg.max_rate_rp_rad_s
+        return (
+            _clamp(roll_dot - sp_ * yaw_rate_sp, -limit, limit),
+            _clamp(cr * pitch_dot + sr * cp * yaw_rate_sp, -limit, limit),
+            -sr * pitch_dot + cr * cp * yaw_rate_sp,
+        )
+
+    def _rate_loop(
+        self, state: VehicleState, rates_sp: tuple[float, float, float]
+    ) -> tuple[float, float, float]:
+        """Body-rate PID (derivative on measurement) -> normalised roll, pitch, yaw torques."""
+        cfg, dt, ri = self.cfg, self.dt_s, self._rate_int
+        p, q, r = rates = state.rates_frd_rad_s
+        pp, pq, pr = self._prev_rates
+        self._prev_rates = rates
+        ep, eq, er = rates_sp[0] - p, rates_sp[1] - q, rates_sp[2] - r
+        if not state.on_ground:
+            lim, lim_yaw = cfg.rate_i_max, cfg.rate_i_max_yaw
+            ri[0] = _clamp(ri[0] + cfg.rate_i_rp * ep * dt, -lim, lim)
+            ri[1] = _clamp(ri[1] + cfg.rate_i_rp * eq * dt, -lim, lim)
+            ri[2] = _clamp(ri[2] + cfg.rate_i_yaw * er * dt, -lim_yaw, lim_yaw)
+        kp, kd = cfg.rate_p_rp, cfg.rate_d_rp / dt
+        return (
+            kp * ep + ri[0] - kd * (p - pp),
+            kp * eq + ri[1] - kd * (q - pq),
+            cfg.rate_p_yaw * er + ri[2],
+        )
+
+
+class LandDetector:
+    """Landed = touching a surface, nearly still and asking for less lift than the weight,
+    continuously for ``hold_s`` (PX4's land detector in miniature)."""
+
+    def __init__(
+        self,
+        dt_s: float,
+        hold_s: float = 0.3,
+        max_speed_m_s: float = 0.3,
+        max_lift_ratio: float = 0.95,
+    ) -> None:
+        self.dt_s = dt_s
+        self.hold_s = hold_s
+        self.max_speed_m_s = max_speed_m_s
+        self.max_lift_ratio = max_lift_ratio
+        self.reset()
+
+    def reset(self) -> None:
+        self._still_s = 0.0
+        self.landed = False
+
+    def update(self, state: VehicleState, lift_ratio: float, armed: bool = True) -> bool:
+        """Feed one step; ``lift_ratio`` is :attr:`FlightController.lift_ratio` (0 if off)."""
+        vn, ve, vd = state.velocity_ned_m_s
+        still = (
+            state.on_ground
+            and vn * vn + ve * ve + vd * vd < self.max_speed_m_s**2
+            and (not armed or lift_ratio < self.max_lift_ratio)
+        )
+        self._still_s = self._still_s + self.dt_s if still else 0.0
+        self.landed = self._still_s >= self.hold_s
+        return self.landed
