@@ -359,9 +359,7 @@ def _load_f450(dt_s: float) -> jsbsim.FGFDMExec:
             shutil.copyfile(shipped / name, model_dir / name)
         (model_dir / "F450.xml").write_text(_TOP_XML)
         (model_dir / "Gear.xml").write_text(_gear_xml())
-        if not fdm.load_model_with_paths(
-            "F450", tmp, str(root / "engine"), str(root / "systems")
-        ):
+        if not fdm.load_model_with_paths("F450", tmp, str(root / "engine"), str(root / "systems")):
             raise SimulatorError(
                 "JSBSim could not load the F450 model; reinstall the jsbsim package (1.3.x)"
             )
