@@ -31,7 +31,7 @@ def view_of(obs: Observation, cfg: PilotConfig) -> PadEstimate | None:
     return estimate_pad(
         obs.pad,
         (float(obs.image_size_px[0]), float(obs.image_size_px[1])),
-        tuple(obs.attitude_rad),  # type: ignore[arg-type]
+        obs.attitude_rad,
         cfg.pad_radius_m,
         math.radians(cfg.camera_hfov_deg),
     )
@@ -95,7 +95,7 @@ class ScriptedExpert(HumanInput):
     def command(self, obs: Observation) -> JoystickCommand:
         """The expert's sticks for this observation (also used when only watching)."""
         yaw_rad = float(obs.attitude_rad[2])
-        vel = heading_velocity(tuple(obs.velocity_ned_m_s), yaw_rad)  # type: ignore[arg-type]
+        vel = heading_velocity(obs.velocity_ned_m_s, yaw_rad)
         now_ms = int(obs.time_boot_ms)
         view = self._commit.update(view_of(obs, self.cfg))
         if view is None and self._commit.committed:
