@@ -10,7 +10,7 @@ Metrics: centre and radius errors and misses over frames with the pad fully in v
 positives over frames with the pad out of view; median render and detect times. The machine may
 be shared with other jobs, so times vary between runs. The last line of stdout is one JSON object.
 
-    python bench/perception.py [--quick] [--frames N] [--seed S] [--lighting] [--blur]
+    python bench/perception.py [--quick] [--frames N] [--seed S] [--lighting] [--blur] [--jpeg]
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import numpy as np
 from companion.perception import PadDetector
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
+from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.world import World
 
 TOUCHDOWN_HEIGHT_M = 0.3  # camera above the pad when the landing gear touches it
@@ -62,8 +63,8 @@ def truth(renderer: CameraRenderer, pad_ned: np.ndarray, radius_m: float, positi
     return {"view": "out" if overlap <= 0 else "partial", "centre": centre, "radius": radius}
 
 
-def perturb(image: np.ndarray, rng: np.random.Generator, lighting: bool, blur: bool) -> np.ndarray:
-    """Optional lighting gain (0.4-1.6) and motion blur (3 to 7 px, any direction)."""
+def perturb(image: np.ndarray, rng: np.random.Generator, lighting: bool, blur: bool, jpeg: bool) -> np.ndarray:
+    """Optional lighting gain (0.4-1.6), motion blur (3 to 7 px, any direction), JPEG transport."""
     if lighting:
         image = cv2.convertScaleAbs(image, alpha=float(rng.uniform(0.4, 1.6)))
     if blur:
@@ -73,10 +74,12 @@ def perturb(image: np.ndarray, rng: np.random.Generator, lighting: bool, blur: b
         kernel = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
         cv2.line(kernel, (half - dx, half - dy), (half + dx, half + dy), 1.0, 1)
         image = cv2.filter2D(image, -1, kernel / kernel.sum())
+    if jpeg:
+        image = decode_frame(encode_frame(Frame(0, 0, image), "jpeg")).image
     return image
 
 
-def run(frames: int, seed: int, lighting: bool, blur: bool) -> dict:
+def run(frames: int, seed: int, lighting: bool, blur: bool, jpeg: bool) -> dict:
     rng = np.random.default_rng(seed)
     world_cfg = WorldConfig()
     renderer = CameraRenderer(CameraConfig(), World(world_cfg))
@@ -89,7 +92,7 @@ def run(frames: int, seed: int, lighting: bool, blur: bool) -> dict:
         t0 = time.perf_counter()
         image = renderer.render(position, attitude, 0.0)
         t1 = time.perf_counter()
-        image = perturb(image, rng, lighting, blur)
+        image = perturb(image, rng, lighting, blur, jpeg)
         t2 = time.perf_counter()
         found = detector.detect(image)
         t3 = time.perf_counter()
@@ -107,10 +110,11 @@ def run(frames: int, seed: int, lighting: bool, blur: bool) -> dict:
                 continue
             centre_err.append(math.hypot(found.u_px - gt["centre"][0], found.v_px - gt["centre"][1]))
             radius_err.append(abs(found.radius_px - gt["radius"]) / gt["radius"])
-    return summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, seed, lighting, blur)
+    conditions = {"seed": seed, "lighting": lighting, "blur": blur, "jpeg": jpeg}
+    return summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, conditions)
 
 
-def summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, seed, lighting, blur) -> dict:
+def summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, conditions) -> dict:
     def pct(values, q):
         return round(float(np.percentile(values, q)), 4) if values else None
 
@@ -124,7 +128,7 @@ def summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, seed
         "detect_ms_p50": pct(detect_ms, 50),
         "partial_detected_rate": round(counts["partial_found"] / max(counts["partial"], 1), 4),
         "frames": frames, "frames_full": counts["full"], "frames_partial": counts["partial"],
-        "frames_out": counts["out"], "seed": seed, "lighting": lighting, "blur": blur,
+        "frames_out": counts["out"], **conditions,
         "note": "times measured on a shared machine",
     }
 
@@ -136,9 +140,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--lighting", action="store_true", help="random brightness gain per frame")
     parser.add_argument("--blur", action="store_true", help="random motion blur per frame")
+    parser.add_argument("--jpeg", action="store_true", help="send frames through the JPEG wire encoding")
     args = parser.parse_args()
     frames = args.frames or (100 if args.quick else 600)
-    print(json.dumps(run(frames, args.seed, args.lighting, args.blur)))
+    print(json.dumps(run(frames, args.seed, args.lighting, args.blur, args.jpeg)))
 
 
 if __name__ == "__main__":

@@ -159,6 +159,7 @@ class SitlCameraSource:
             sock = None
             if not self._closed.is_set():
                 self._slot.mark_dead(reason)
+        self._shutdown_socket()  # a reconnect may have raced with close()
 
     def _read_until_error(self, sock: socket.socket) -> str:
         stream = sock.makefile("rb")
