@@ -194,15 +194,22 @@ class CommandMapper:
             forward_m_s=forward, right_m_s=right, down_m_s=down, yaw_rate_rad_s=yaw_rate
         )
 
-    def from_values(self, values: Sequence[float] | np.ndarray) -> VelocitySetpoint:
-        """Map untrusted values (a policy's raw output): sanitize, count, then map."""
+    def command_from_values(self, values: Sequence[float] | np.ndarray) -> JoystickCommand:
+        """Untrusted values (a policy's raw output) as a valid command; repairs counted, logged.
+
+        Use this before the arbiter, so that what it chooses between is already valid.
+        """
         cmd, issues = sanitize(values)
         if issues.any:
             self._count(
                 MapperCounts(non_finite_axes=issues.non_finite, clamped_axes=issues.clamped)
             )
             self._log_repair(values, issues)
-        return self.to_setpoint(cmd)
+        return cmd
+
+    def from_values(self, values: Sequence[float] | np.ndarray) -> VelocitySetpoint:
+        """Map untrusted values: :meth:`command_from_values`, then :meth:`to_setpoint`."""
+        return self.to_setpoint(self.command_from_values(values))
 
     def _count(self, delta: MapperCounts) -> None:
         c = self._counts

@@ -192,3 +192,11 @@ def test_mapper_maps_valid_values_like_the_command() -> None:
     values = [0.3, -0.7, 0.2, 0.9]
     assert m.from_values(values) == m.to_setpoint(JoystickCommand.from_array(values))
     assert m.counts.non_finite_axes == 0 and m.counts.clamped_axes == 0
+
+
+def test_command_from_values_repairs_and_counts_without_mapping() -> None:
+    m = CommandMapper(CFG)
+    cmd = m.command_from_values(np.array([math.nan, 1.5, -0.5, 0.25], dtype=np.float32))
+    assert cmd == JoystickCommand(0.0, 1.0, -0.5, 0.25)
+    c = m.counts
+    assert (c.commands, c.non_finite_axes, c.clamped_axes) == (0, 1, 1)
