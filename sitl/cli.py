@@ -7,7 +7,7 @@ import logging
 import signal
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -65,16 +65,16 @@ def build_config(
 
 @app.command()
 def run(
-    config: Annotated[Optional[Path], typer.Option(help="TOML config file ([sitl] tables); default: built-in paper setting")] = None,
-    clock: Annotated[Optional[str], typer.Option(help="realtime or lockstep")] = None,
-    speed: Annotated[Optional[float], typer.Option(help="real-time speed factor (sim s per wall s)")] = None,
-    seed: Annotated[Optional[int], typer.Option(help="seed for episode starts")] = None,
-    udp: Annotated[Optional[list[str]], typer.Option(help="LOCAL:REMOTE UDP port pair (repeatable; 0 = any free local port)")] = None,
-    tcp: Annotated[Optional[int], typer.Option(help="MAVLink TCP server port (0 = any free, -1 = off)")] = None,
-    camera_port: Annotated[Optional[int], typer.Option(help="camera stream TCP port (0 = any free)")] = None,
-    control_port: Annotated[Optional[int], typer.Option(help="control surface TCP port (0 = any free)")] = None,
+    config: Annotated[Path | None, typer.Option(help="TOML config file ([sitl] tables); default: built-in paper setting")] = None,
+    clock: Annotated[str | None, typer.Option(help="realtime or lockstep")] = None,
+    speed: Annotated[float | None, typer.Option(help="real-time speed factor (sim s per wall s)")] = None,
+    seed: Annotated[int | None, typer.Option(help="seed for episode starts")] = None,
+    udp: Annotated[list[str] | None, typer.Option(help="LOCAL:REMOTE UDP port pair (repeatable; 0 = any free local port)")] = None,
+    tcp: Annotated[int | None, typer.Option(help="MAVLink TCP server port (0 = any free, -1 = off)")] = None,
+    camera_port: Annotated[int | None, typer.Option(help="camera stream TCP port (0 = any free)")] = None,
+    control_port: Annotated[int | None, typer.Option(help="control surface TCP port (0 = any free)")] = None,
     no_camera: Annotated[bool, typer.Option("--no-camera", help="do not render or serve the camera")] = False,
-    duration: Annotated[Optional[float], typer.Option(help="stop after this much simulation time (s)")] = None,
+    duration: Annotated[float | None, typer.Option(help="stop after this much simulation time (s)")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
 ) -> None:
     """Start the SITL. Prints one line `READY {json}` with the bound ports once it listens."""

@@ -32,6 +32,7 @@ log = logging.getLogger("sitl.server")
 M = mavlink
 DETACH_AFTER_TIMEOUTS = 3
 MAX_TCP_BACKLOG_BYTES = 1 << 20
+UDP_PAYLOAD_BYTES = 1472  # one Ethernet MTU: what a real radio or network link carries
 
 
 class MavClient:
@@ -40,18 +41,20 @@ class MavClient:
     name: str
 
     def __init__(self) -> None:
-        self.parser = M.MAVLink(None, 0, 0)
-        self.parser.robust_parsing = True
+        self._new_parser()
         self.active = False  # has the peer ever talked to us?
         self.bad_packets = 0
+
+    def _new_parser(self) -> None:
+        self.parser = M.MAVLink(None, 0, 0)
+        self.parser.robust_parsing = True
 
     def parse(self, data: bytes) -> list[mavlink.MAVLink_message]:
         try:
             msgs = self.parser.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - pymavlink raises bare exceptions on garbage
             self.bad_packets += 1
-            self.parser = M.MAVLink(None, 0, 0)
-            self.parser.robust_parsing = True
+            self._new_parser()
             return []
         good = [m for m in msgs if m.get_type() != "BAD_DATA"]
         self.bad_packets += len(msgs) - len(good)
@@ -59,6 +62,9 @@ class MavClient:
 
     def send(self, data: bytes) -> None:
         raise NotImplementedError
+
+    def flush(self) -> None:
+        """Push out anything queued by :meth:`send` (a no-op for unbuffered transports)."""
 
     def close(self) -> None:
         raise NotImplementedError
@@ -75,6 +81,7 @@ class UdpClient(MavClient):
         self.sock.setblocking(False)
         self.local_port = self.sock.getsockname()[1]
         self.remote = (host, remote_port)
+        self.outbox = bytearray()
         self.name = f"udp:{self.local_port}->{remote_port}"
 
     def read(self) -> list[mavlink.MAVLink_message]:
@@ -89,12 +96,23 @@ class UdpClient(MavClient):
             self.remote = addr
             self.active = True
             msgs.extend(self.parse(data))
+            if len(self.parser.buf) > self.parser.buf_index:  # a datagram is whole: drop leftovers
+                self._new_parser()
 
     def send(self, data: bytes) -> None:
+        """Queue ``data``; :meth:`flush` packs queued messages into few datagrams, as PX4 does."""
+        if len(self.outbox) + len(data) > UDP_PAYLOAD_BYTES:
+            self.flush()
+        self.outbox += data
+
+    def flush(self) -> None:
+        if not self.outbox:
+            return
         try:
-            self.sock.sendto(data, self.remote)
+            self.sock.sendto(self.outbox, self.remote)
         except OSError:
             pass  # nobody listening there (yet): a real autopilot keeps sending too
+        self.outbox = bytearray()
 
     def close(self) -> None:
         self.sock.close()
@@ -303,12 +321,19 @@ class SitlServer:
                 self._broadcast(Outgoing(CAMERA, hb))
         self._flush_events()
         self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_SYSTEM_TIME](v)))
+        self._flush_all()
+
+    def _flush_all(self) -> None:
+        for c in self.clients:
+            c.flush()
 
     def _send_due(self) -> None:
         v = self.vehicle
         for msg_id in self.scheduler.due(v.time_s):
             self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[msg_id](v)))
         self._flush_events()
+        if not self._strict():
+            self._flush_all()
 
     def _flush_events(self) -> None:
         events = self.vehicle.events
@@ -361,6 +386,7 @@ class SitlServer:
                     self.stats.attached = True
                     self.stats.timeouts_in_row = 0
         self._flush_events()
+        self._flush_all()
 
     def _forward(self, source: MavClient, msg: mavlink.MAVLink_message) -> None:
         """Like PX4 with forwarding on: what one peer says reaches the other active peers."""
@@ -427,6 +453,7 @@ class SitlServer:
         except OSError:
             pass
         self._flush_events()
+        self._flush_all()
 
     def _fresh_scheduler(self) -> TelemetryScheduler:
         """Keep requested intervals but restart the phase, so an episode is independent of the last."""
@@ -469,7 +496,7 @@ class _CameraFeed:
     def publish(self, blocking: bool) -> None:
         from sitl.frames import Frame
 
-        if not self.server.has_clients():
+        if self.server.client_count == 0:
             return
         s = self.vehicle.state
         image = self.renderer.render(s.position_ned_m, s.attitude_rad, s.time_s)

@@ -125,7 +125,9 @@ class SimVehicle:
         if self.mode is Mode.AUTO_TAKEOFF and not math.isnan(self._sp.position_ned_m[2]):
             if abs(state.position_ned_m[2] - self._sp.position_ned_m[2]) < 0.15:
                 self.say(mavlink.MAV_SEVERITY_INFO, "Takeoff complete, holding")
+                target = self._sp
                 self._set_mode(Mode.AUTO_LOITER)
+                self._sp = Setpoint(position_ned_m=target.position_ned_m, velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=target.yaw_rad)
 
     def _ground_contact(self, s: VehicleState) -> None:
         vn, ve, vd = s.velocity_ned_m_s

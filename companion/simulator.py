@@ -1,0 +1,134 @@
+"""The companion's side of the SITL: starting it as a process and using its control surface.
+
+A real vehicle has no control surface; everything here is optional for the session, which
+falls back to flying episode starts itself when no simulator is attached.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from companion.errors import SimulatorError
+
+
+class SimulatorClient:
+    """JSON-lines client of the SITL's control surface (docs/protocols.md)."""
+
+    def __init__(self, host: str, port: int, timeout_s: float = 10.0) -> None:
+        try:
+            self._sock = socket.create_connection((host, port), timeout=timeout_s)
+        except OSError as exc:
+            raise SimulatorError(f"cannot reach the simulator control surface at {host}:{port}: {exc}; is the SITL running?") from exc
+        self._file = self._sock.makefile("rb")
+        self._lock = threading.Lock()
+
+    def request(self, cmd: str, **args: Any) -> dict[str, Any]:
+        """Send one request and return its reply; a refusal raises SimulatorError."""
+        with self._lock:
+            try:
+                self._sock.sendall((json.dumps({"cmd": cmd, **args}) + "\n").encode())
+                line = self._file.readline()
+            except OSError as exc:
+                raise SimulatorError(f"simulator control surface failed during {cmd!r}: {exc}") from exc
+        if not line:
+            raise SimulatorError(f"simulator closed the control connection during {cmd!r}")
+        reply = json.loads(line)
+        if not reply.get("ok"):
+            raise SimulatorError(f"simulator refused {cmd!r}: {reply.get('error')}")
+        return reply
+
+    def info(self) -> dict[str, Any]:
+        return self.request("info")
+
+    def reset(self, seed: int | None = None) -> dict[str, Any]:
+        return self.request("reset", seed=seed)
+
+    def truth(self) -> dict[str, Any]:
+        return self.request("truth")
+
+    def close(self) -> None:
+        try:
+            self._file.close()
+            self._sock.close()
+        except OSError:
+            pass
+
+
+@dataclass
+class SitlProcess:
+    """A running ``col-sitl`` and the ports it bound."""
+
+    proc: subprocess.Popen[bytes]
+    ports: dict[str, Any]
+
+    @property
+    def control_port(self) -> int:
+        return int(self.ports["control"])
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout_s)
+        for stream in (self.proc.stdout, self.proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+def start_sitl(
+    udp_remote_port: int,
+    clock: str = "lockstep",
+    config: str | Path | None = None,
+    seed: int | None = None,
+    camera: bool = True,
+    extra_args: list[str] | None = None,
+    timeout_s: float = 30.0,
+) -> SitlProcess:
+    """Start the SITL in another process on free loopback ports, sending MAVLink to
+    ``udp_remote_port``; returns once it reports READY."""
+    args = [sys.executable, "-m", "sitl", "--clock", clock, "--udp", f"0:{udp_remote_port}", "--tcp", "-1",
+            "--camera-port", "0", "--control-port", "0"]
+    if config is not None:
+        args += ["--config", str(config)]
+    if seed is not None:
+        args += ["--seed", str(seed)]
+    if not camera:
+        args.append("--no-camera")
+    args += extra_args or []
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    deadline = time.monotonic() + timeout_s
+    assert proc.stdout is not None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+            raise SimulatorError(f"the SITL exited before it was ready:\n{err[-2000:]}")
+        if line.startswith(b"READY "):
+            return SitlProcess(proc, json.loads(line[6:]))
+    proc.kill()
+    raise SimulatorError(f"the SITL did not report READY within {timeout_s} s")
+
+
+@contextmanager
+def running_sitl(udp_remote_port: int, **kwargs: Any) -> Iterator[SitlProcess]:
+    """``start_sitl`` as a context manager that always stops the process."""
+    sitl = start_sitl(udp_remote_port, **kwargs)
+    try:
+        yield sitl
+    finally:
+        sitl.stop()

@@ -1,0 +1,129 @@
+"""The simulated autopilot in process: arming, takeoff, offboard, failsafes, ground contact."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from pymavlink.dialects.v20 import common as M
+
+from sitl.config import SitlConfig
+from sitl.modes import Mode
+from sitl.offboard import FRAME_BODY_NED, TargetFields
+from sitl.vehicle import SimVehicle
+
+
+def run_s(v: SimVehicle, seconds: float, each_step=None) -> None:
+    for _ in range(int(round(seconds / v.dynamics.dt_s))):
+        if each_step is not None:
+            each_step(v)
+        v.step()
+
+
+def body_velocity(forward: float = 0.0, right: float = 0.0, down: float = 0.0, yaw_rate: float = 0.0) -> TargetFields:
+    return TargetFields(FRAME_BODY_NED, 0x5C7, 0, 0, 0, forward, right, down, 0, yaw_rate)
+
+
+@pytest.fixture
+def vehicle() -> SimVehicle:
+    return SimVehicle(SitlConfig())
+
+
+def test_starts_landed_disarmed_on_the_ground(vehicle: SimVehicle) -> None:
+    assert not vehicle.armed and vehicle.landed
+    assert vehicle.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+    assert vehicle.state.position_ned_m[2] == pytest.approx(0.0, abs=0.2)
+
+
+def test_arm_takeoff_hold_land_disarm(vehicle: SimVehicle) -> None:
+    assert vehicle.arm()[0] == M.MAV_RESULT_ACCEPTED
+    assert vehicle.takeoff(math.nan)[0] == M.MAV_RESULT_ACCEPTED
+    run_s(vehicle, 8.0)
+    assert vehicle.mode is Mode.AUTO_LOITER
+    assert -vehicle.state.position_ned_m[2] == pytest.approx(2.5, abs=0.15)
+    assert not vehicle.landed
+    assert vehicle.disarm()[0] == M.MAV_RESULT_DENIED  # not in the air without force
+    assert vehicle.land()[0] == M.MAV_RESULT_ACCEPTED
+    run_s(vehicle, 8.0)
+    assert vehicle.landed and not vehicle.armed
+
+
+def test_takeoff_needs_arming(vehicle: SimVehicle) -> None:
+    assert vehicle.takeoff(math.nan)[0] == M.MAV_RESULT_TEMPORARILY_REJECTED
+
+
+def test_offboard_refused_without_stream_then_flies_body_velocity(vehicle: SimVehicle) -> None:
+    vehicle.reset_episode(seed=1)
+    assert vehicle.request_mode(Mode.OFFBOARD)[0] == M.MAV_RESULT_DENIED
+    vehicle.offboard_setpoint(body_velocity(forward=1.0))
+    assert vehicle.request_mode(Mode.OFFBOARD)[0] == M.MAV_RESULT_ACCEPTED
+    n0 = vehicle.state.position_ned_m[0]
+    run_s(vehicle, 3.0, lambda v: v.offboard_setpoint(body_velocity(forward=1.0)))
+    assert vehicle.mode is Mode.OFFBOARD
+    assert vehicle.state.velocity_ned_m_s[0] == pytest.approx(1.0, abs=0.1)
+    assert vehicle.state.position_ned_m[0] - n0 > 2.0
+
+
+def test_offboard_loss_holds_then_lands(vehicle: SimVehicle) -> None:
+    vehicle.reset_episode(seed=2)
+    vehicle.offboard_setpoint(body_velocity())
+    vehicle.request_mode(Mode.OFFBOARD)
+    run_s(vehicle, 0.4)
+    assert vehicle.mode is Mode.OFFBOARD
+    run_s(vehicle, 0.3)  # past COM_OF_LOSS_T = 0.5 s
+    assert vehicle.mode is Mode.AUTO_LOITER
+    run_s(vehicle, 5.0)  # past COM_OBL_LAND_T = 5 s more
+    assert vehicle.mode is Mode.AUTO_LAND
+
+
+def test_nan_setpoints_are_refused_and_do_not_keep_offboard_alive(vehicle: SimVehicle) -> None:
+    vehicle.reset_episode(seed=3)
+    vehicle.offboard_setpoint(body_velocity())
+    vehicle.request_mode(Mode.OFFBOARD)
+    bad = body_velocity(forward=math.nan)
+    run_s(vehicle, 1.0, lambda v: v.offboard_setpoint(bad))
+    assert vehicle.rejected_setpoints > 0
+    assert vehicle.mode is Mode.AUTO_LOITER  # the stream of garbage counts as no stream
+    assert all(math.isfinite(c) for c in vehicle.state.position_ned_m)
+
+
+def test_reset_places_vehicle_above_pad_hovering_and_is_seeded(vehicle: SimVehicle) -> None:
+    start = vehicle.reset_episode(seed=11)
+    pad = vehicle.world.pad_ned(vehicle.time_s)
+    assert start[2] - pad[2] == pytest.approx(-8.0)
+    assert abs(start[0] - pad[0]) <= 3.0 and abs(start[1] - pad[1]) <= 3.0
+    assert vehicle.armed and vehicle.mode is Mode.AUTO_LOITER and not vehicle.landed
+    run_s(vehicle, 2.0)
+    assert vehicle.state.position_ned_m[2] == pytest.approx(start[2], abs=0.1)
+    again = SimVehicle(SitlConfig()).reset_episode(seed=11)
+    assert tuple(again) == tuple(start)
+
+
+def test_descending_onto_the_pad_is_a_successful_touchdown(vehicle: SimVehicle) -> None:
+    vehicle.reset_episode(seed=4)
+    pad = vehicle.world.pad_ned(vehicle.time_s)
+    from sitl.offboard import FRAME_LOCAL_NED
+
+    goto = TargetFields(FRAME_LOCAL_NED, 0b110111111000, pad[0], pad[1], pad[2] - 2.0, 0, 0, 0, 0, 0)
+    vehicle.offboard_setpoint(goto)
+    vehicle.request_mode(Mode.OFFBOARD)
+    run_s(vehicle, 8.0, lambda v: v.offboard_setpoint(goto))
+    down = TargetFields(FRAME_LOCAL_NED, 0b110111000011 & ~0b11, pad[0], pad[1], 0, 0, 0, 0.5, 0, 0)
+    run_s(vehicle, 8.0, lambda v: v.offboard_setpoint(down))
+    td = vehicle.touchdown
+    assert td is not None and td.on_pad and td.success
+    assert td.distance_to_pad_m < 0.3
+    assert vehicle.landed
+    assert vehicle.state.position_ned_m[2] == pytest.approx(-1.5, abs=0.2)  # on the roof
+
+
+def test_manual_control_flies_in_posctl(vehicle: SimVehicle) -> None:
+    vehicle.reset_episode(seed=5)
+    assert vehicle.request_mode(Mode.POSCTL)[0] == M.MAV_RESULT_ACCEPTED
+    e0 = vehicle.state.position_ned_m[1]
+    run_s(vehicle, 3.0, lambda v: v.manual_control(0, 1000, 500, 0))  # full right
+    assert vehicle.state.position_ned_m[1] - e0 > 3.0
+    e1 = vehicle.state.position_ned_m[1]
+    run_s(vehicle, 3.0, lambda v: v.manual_control(0, 0, 500, 0))  # centred: hold
+    assert abs(vehicle.state.velocity_ned_m_s[1]) < 0.3
+    assert vehicle.state.position_ned_m[1] - e1 < 3.0
