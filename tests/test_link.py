@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import struct
 import time
 from collections.abc import Callable, Iterator
 
@@ -409,6 +410,15 @@ def test_tlog_records_both_directions_and_pymavlink_reads_it(fake, make_link, tm
     assert ("SET_POSITION_TARGET_LOCAL_NED", 191) in seen
     assert ("COMMAND_ACK", 1) in seen
     assert stamps == sorted(stamps) and abs(stamps[-1] - time.time()) < 60
+    # MAVProxy's direction bits in the raw records: 3 = sent by us, 0 = received
+    raw, directions, offset = path.read_bytes(), {}, 0
+    while offset < len(raw):
+        usec = struct.unpack(">Q", raw[offset : offset + 8])[0]
+        assert raw[offset + 8] == 0xFD  # MAVLink 2: magic, length, flags, seq, sys, comp
+        length, signed, component = raw[offset + 9], raw[offset + 10] & 1, raw[offset + 14]
+        directions.setdefault(component, set()).add(usec & 3)
+        offset += 8 + 12 + length + (13 if signed else 0)
+    assert directions[191] == {3} and directions[1] == {0}
 
 
 # ------------------------------------------------------------------ contract

@@ -409,7 +409,7 @@ class MavlinkLink(VehicleLink):
                 raise LinkLost("the link is closed; open a new one")
             conn.mav.send(msg)
             if self._tlog is not None:
-                self._tlog.write(msg.get_msgbuf())
+                self._tlog.write(msg.get_msgbuf(), sent=True)
 
     def _send_heartbeat(self) -> None:
         try:

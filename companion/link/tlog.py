@@ -2,7 +2,8 @@
 
 Each record is the 8-byte big-endian time of arrival or sending in microseconds since the
 Unix epoch, followed by the raw MAVLink packet; both directions go into one file, so
-``pymavlink.mavutil.mavlink_connection(path)`` and MAVExplorer replay it.
+``pymavlink.mavutil.mavlink_connection(path)`` and MAVExplorer replay it. As MAVProxy does, the
+two lowest bits of the time carry the direction: 0 for received (link 0), 3 for sent.
 """
 
 from __future__ import annotations
@@ -11,6 +12,9 @@ import struct
 import threading
 import time
 from pathlib import Path
+
+RECEIVED_LINK = 0  # MAVProxy: link number of the vehicle link
+SENT_LINK = 3  # MAVProxy: messages it sent
 
 
 class TlogWriter:
@@ -25,9 +29,10 @@ class TlogWriter:
         self._unflushed = 0
         self.records = 0
 
-    def write(self, packet: bytes, wall_time_s: float | None = None) -> None:
-        """Log one packet (no-op once closed)."""
+    def write(self, packet: bytes, sent: bool = False, wall_time_s: float | None = None) -> None:
+        """Log one packet (no-op once closed); ``sent`` marks our own packets."""
         usec = int((time.time() if wall_time_s is None else wall_time_s) * 1e6)
+        usec = (usec & ~3) | (SENT_LINK if sent else RECEIVED_LINK)
         with self._lock:
             if self._file.closed:
                 return
