@@ -109,6 +109,10 @@ class LearnerConfig(Section):
     publish_every_updates: int = Field(
         8, ge=1, description="publish a snapshot at least this often (and after any new data)"
     )
+    thread_nice: int = Field(10, ge=0, le=19, description="learner thread's OS niceness (Linux)")
+    gil_switch_interval_s: float = Field(
+        0.001, gt=0, le=0.1, description="while the learner thread runs: bounds control's GIL wait"
+    )
 
 
 class PilotConfig(Section):
@@ -152,6 +156,10 @@ class PilotConfig(Section):
     takeover_touchdown_speed_m_s: float = Field(
         0.4, gt=0, description="ground speed that is too fast once committed to touchdown"
     )
+    takeover_stall_s: float = Field(
+        6.0, ge=0, description="no progress down for this long -> take over; 0 disables"
+    )
+    takeover_stall_descent_m: float = Field(0.5, gt=0, description="what counts as progress")
     release_edge_fraction: float = Field(0.5, gt=0, le=1)
     release_off_centre_m: float = Field(0.3, gt=0)
     release_hold_s: float = Field(1.0, ge=0, description="back on track this long -> let go")

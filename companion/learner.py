@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import sys
 import threading
 from dataclasses import dataclass
 from enum import Enum
@@ -241,6 +243,11 @@ class LearnerThread:
 
     The control loop only reads ``latest_snapshot`` (one attribute load). A failure ends the
     thread with state FAILED, is logged and kept in ``error``; the last good snapshot stays.
+
+    So that control keeps its core and its timing, the thread limits torch's threads, lowers
+    its own OS priority (``thread_nice``) and, while it runs, shortens the interpreter's GIL
+    switch interval (``gil_switch_interval_s``; restored by ``stop``): a control thread waking
+    up waits at most about that long for the GIL instead of the default 5 ms.
     """
 
     def __init__(self, learner: Learner, *, chunk_updates: int | None = None,
@@ -251,6 +258,7 @@ class LearnerThread:
         self._state = LearnerState.NEW
         self._error: BaseException | None = None
         self._stop = threading.Event()
+        self._saved_switch_interval_s: float | None = None
         self._thread = threading.Thread(target=self._run, name="col-learner", daemon=True)
 
     @property
@@ -274,6 +282,9 @@ class LearnerThread:
         if self._state is not LearnerState.NEW:
             raise RuntimeError(f"learner thread already {self._state.value}; make a new one")
         self._state = LearnerState.IDLE
+        self._saved_switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._saved_switch_interval_s,
+                                  self.learner.config.gil_switch_interval_s))
         self._thread.start()
 
     def stop(self, timeout_s: float = 5.0) -> LearnerState:
@@ -284,6 +295,9 @@ class LearnerThread:
             if self._thread.is_alive():
                 log.warning("learner thread did not stop within %.1f s; it is a daemon and "
                             "will end with the process", timeout_s)
+        if self._saved_switch_interval_s is not None:
+            sys.setswitchinterval(self._saved_switch_interval_s)
+            self._saved_switch_interval_s = None
         return self._state
 
     def __enter__(self) -> LearnerThread:
@@ -295,6 +309,7 @@ class LearnerThread:
 
     def _run(self) -> None:
         torch.set_num_threads(self.learner.config.torch_threads)
+        _lower_this_threads_priority(self.learner.config.thread_nice)
         try:
             while not self._stop.is_set():
                 if self.learner.has_work:
@@ -310,6 +325,17 @@ class LearnerThread:
                           self.learner.latest_snapshot.version)
             return
         self._state = LearnerState.STOPPED
+
+
+def _lower_this_threads_priority(nice: int) -> None:
+    """Raise the calling thread's niceness (Linux: per thread); elsewhere do nothing."""
+    if nice <= 0 or not hasattr(os, "setpriority"):
+        return
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), nice))
+    except OSError as exc:
+        log.info("could not lower the learner thread's priority (%s); continuing", exc)
 
 
 def make_runner(learner: Learner) -> BudgetedLearner | LearnerThread:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from sitl.config import CameraConfig
 from sitl.world import World
@@ -115,8 +116,7 @@ def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radiu
     return TexturePyramid(_pyramid(base, _ROOF_LEVELS, wrap=False), _ROOF_TEXEL_M)
 
 
-
-def rotation_ned_from_body(attitude_rad) -> np.ndarray:
+def rotation_ned_from_body(attitude_rad: ArrayLike) -> np.ndarray:
     """Body FRD -> NED rotation from roll, pitch, yaw (aerospace ZYX order)."""
     roll, pitch, yaw = (float(a) for a in attitude_rad)
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
@@ -149,21 +149,23 @@ class CameraRenderer:
     def vfov_rad(self) -> float:
         return 2.0 * float(np.arctan((self.height_px / 2.0) / self.fy))
 
-    def world_to_image(self, position_ned_m, attitude_rad) -> np.ndarray:
+    def world_to_image(self, position_ned_m: ArrayLike, attitude_rad: ArrayLike) -> np.ndarray:
         """3x4 matrix P with ``[u*w, v*w, w] = P @ [n, e, d, 1]`` (w = depth along the axis)."""
         r_bn = rotation_ned_from_body(attitude_rad).T
         m = self.K @ CAM_FROM_BODY @ r_bn
         pos = np.asarray(position_ned_m, dtype=float)
         return np.hstack([m, (-m @ pos)[:, None]])
 
-    def project(self, point_ned_m, position_ned_m, attitude_rad) -> tuple[float, float] | None:
+    def project(
+        self, point_ned_m: ArrayLike, position_ned_m: ArrayLike, attitude_rad: ArrayLike
+    ) -> tuple[float, float] | None:
         """Ground-truth pixel ``(u, v)`` of a world point; None if it is behind the camera."""
         p = self.world_to_image(position_ned_m, attitude_rad) @ np.append(np.asarray(point_ned_m, float), 1.0)
         if p[2] <= _MIN_DEPTH_M:
             return None
         return float(p[0] / p[2]), float(p[1] / p[2])
 
-    def project_many(self, points_ned_m: np.ndarray, position_ned_m, attitude_rad) -> np.ndarray:
+    def project_many(self, points_ned_m: ArrayLike, position_ned_m: ArrayLike, attitude_rad: ArrayLike) -> np.ndarray:
         """``(N, 3)`` rows of ``u, v, depth_m`` (depth <= 0: behind the camera, u, v meaningless)."""
         pts = np.asarray(points_ned_m, dtype=float)
         p = np.hstack([pts, np.ones((len(pts), 1))]) @ self.world_to_image(position_ned_m, attitude_rad).T
@@ -171,7 +173,7 @@ class CameraRenderer:
         safe = np.where(np.abs(depth) < 1e-9, 1e-9, depth)
         return np.column_stack([p[:, 0] / safe, p[:, 1] / safe, depth])
 
-    def render(self, position_ned_m, attitude_rad, t_s: float) -> np.ndarray:
+    def render(self, position_ned_m: ArrayLike, attitude_rad: ArrayLike, t_s: float) -> np.ndarray:
         """The camera image at pose (NED position, roll/pitch/yaw) and world time ``t_s``."""
         pos = np.array(position_ned_m, dtype=float)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(np.asarray(attitude_rad, dtype=float)))):
@@ -183,7 +185,9 @@ class CameraRenderer:
         self._draw_vehicle(image, proj, pos, t_s)
         return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
 
-    def _plane_homography(self, proj: np.ndarray, pyr: TexturePyramid, level: int, origin_ne, z_m: float) -> np.ndarray:
+    def _plane_homography(
+        self, proj: np.ndarray, pyr: TexturePyramid, level: int, origin_ne: tuple[float, float], z_m: float
+    ) -> np.ndarray:
         """Texture pixel (col, row, 1) of a horizontal plane at depth ``z_m`` -> image pixel."""
         s = pyr.texel_m(level)
         n0, e0 = origin_ne
@@ -242,7 +246,9 @@ class CameraRenderer:
         if pos[2] < roof_z:  # the roof is seen only from above it
             self._draw_roof(image, proj, pos, uv[:4], centre_ne, roof_z)
 
-    def _draw_roof(self, image, proj, pos, roof_uv, centre_ne, roof_z: float) -> None:
+    def _draw_roof(
+        self, image: np.ndarray, proj: np.ndarray, pos: np.ndarray, roof_uv: np.ndarray, centre_ne: np.ndarray, roof_z: float
+    ) -> None:
         """Warp the roof texture into the roof's bounding box only (cheap), keeping what is outside."""
         x0, y0 = np.maximum(np.floor(roof_uv.min(axis=0)).astype(int) - 1, 0)
         x1 = min(int(np.ceil(roof_uv[:, 0].max())) + 2, self.width_px)

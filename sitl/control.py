@@ -36,6 +36,8 @@ MOTOR_YAW = (1.0, 1.0, -1.0, -1.0)
 ESC_OFF = (0.0, 0.0, 0.0, 0.0)
 MIN_LIFT_RATIO = 0.25  # never ask for less than this fraction of weight: keeps control authority
 MAX_LIFT_RATIO = 2.5
+_MIN_LIFT = MIN_LIFT_RATIO * GRAVITY_M_S2
+_MAX_LIFT = MAX_LIFT_RATIO * GRAVITY_M_S2
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,15 +103,82 @@ def throttle_for_lift(lift_ratio: float, hover_throttle: float, quadratic: float
     return x * hover_throttle
 
 
+@dataclass(frozen=True, slots=True)
+class _Gains:
+    """The config's gains and limits as plain slots (read ~40 times a step: pydantic is slower)."""
+
+    pos_p_xy: float
+    pos_p_z: float
+    max_xy_m_s: float
+    max_up_m_s: float
+    max_down_m_s: float
+    vel_p_xy: float
+    vel_i_xy_dt: float
+    vel_i_max_xy: float
+    vel_p_z: float
+    vel_i_z_dt: float
+    vel_i_max_z: float
+    vel_i_zone2: float
+    tan_tilt: float
+    hover_throttle: float
+    thrust_quadratic: float
+    att_p_rp: float
+    att_p_yaw: float
+    max_rate_rp: float
+    max_yaw_rate: float
+    rate_p_rp: float
+    rate_i_rp_dt: float
+    rate_d_rp_per_dt: float
+    rate_i_max: float
+    rate_p_yaw: float
+    rate_i_yaw_dt: float
+    rate_i_max_yaw: float
+
+    @classmethod
+    def from_config(cls, cfg: AutopilotConfig, dt_s: float) -> _Gains:
+        return cls(
+            cfg.pos_p_xy,
+            cfg.pos_p_z,
+            cfg.max_speed_xy_m_s,
+            cfg.max_speed_up_m_s,
+            cfg.max_speed_down_m_s,
+            cfg.vel_p_xy,
+            cfg.vel_i_xy * dt_s,
+            cfg.vel_i_max_xy_m_s2,
+            cfg.vel_p_z,
+            cfg.vel_i_z * dt_s,
+            cfg.vel_i_max_z_m_s2,
+            cfg.vel_i_zone_m_s**2,
+            math.tan(cfg.max_tilt_rad),
+            cfg.hover_throttle,
+            cfg.thrust_curve_quadratic,
+            cfg.att_p_rp,
+            cfg.att_p_yaw,
+            cfg.max_rate_rp_rad_s,
+            cfg.max_yaw_rate_rad_s,
+            cfg.rate_p_rp,
+            cfg.rate_i_rp * dt_s,
+            cfg.rate_d_rp / dt_s,
+            cfg.rate_i_max,
+            cfg.rate_p_yaw,
+            cfg.rate_i_yaw * dt_s,
+            cfg.rate_i_max_yaw,
+        )
+
+
 class FlightController:
-    """The cascade, from a :class:`Setpoint` to four ESC commands, at a fixed step ``dt_s``."""
+    """The cascade, from a :class:`Setpoint` to four ESC commands, at a fixed step ``dt_s``.
+
+    Runs on every FDM step, so it is written for speed: plain floats, gains in slots, clamps
+    inlined (``lo if x < lo else hi if x > hi else x``).
+    """
 
     def __init__(self, cfg: AutopilotConfig, dt_s: float) -> None:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f"dt_s={dt_s!r}: the controller needs a positive, finite time step")
         self.cfg = cfg
         self.dt_s = dt_s
-        self._tan_tilt = math.tan(cfg.max_tilt_rad)
+        self._g = _Gains.from_config(cfg, dt_s)
         self.reset()
 
     def reset(self) -> None:
@@ -136,18 +205,19 @@ class FlightController:
 
     def _velocity_command(self, state: VehicleState, sp: Setpoint) -> tuple[float, float, float]:
         """Position P plus feed-forward per axis, limited to the configured speeds."""
-        cfg = self.cfg
+        g = self._g
         (pn, pe, pd), (tn, te, td) = state.position_ned_m, sp.position_ned_m
         fn, fe, fd = sp.velocity_ned_m_s
         fn, fe, fd = _finite(fn, 0.0), _finite(fe, 0.0), _finite(fd, 0.0)
-        vn = cfg.pos_p_xy * (tn - pn) + fn if tn - tn == 0.0 else fn
-        ve = cfg.pos_p_xy * (te - pe) + fe if te - te == 0.0 else fe
-        vd = cfg.pos_p_z * (td - pd) + fd if td - td == 0.0 else fd
+        vn = g.pos_p_xy * (tn - pn) + fn if tn - tn == 0.0 else fn
+        ve = g.pos_p_xy * (te - pe) + fe if te - te == 0.0 else fe
+        vd = g.pos_p_z * (td - pd) + fd if td - td == 0.0 else fd
         speed = math.hypot(vn, ve)
-        if speed > cfg.max_speed_xy_m_s:
-            scale = cfg.max_speed_xy_m_s / speed
+        if speed > g.max_xy_m_s:
+            scale = g.max_xy_m_s / speed
             vn, ve = vn * scale, ve * scale
-        return vn, ve, _clamp(vd, -cfg.max_speed_up_m_s, cfg.max_speed_down_m_s)
+        up, down = g.max_up_m_s, g.max_down_m_s
+        return vn, ve, (-up if vd < -up else down if vd > down else vd)
 
     def _acceleration(
         self, state: VehicleState, vel_cmd: tuple[float, float, float]
@@ -157,32 +227,29 @@ class FlightController:
         Integrators only run near the setpoint (so a step does not wind them up into a slow
         overshoot) and freeze while touching a surface, where contact forces would.
         """
-        cfg, dt, vi = self.cfg, self.dt_s, self._vel_int
+        g, vi = self._g, self._vel_int
         vn, ve, vd = state.velocity_ned_m_s
         en, ee, ed = vel_cmd[0] - vn, vel_cmd[1] - ve, vel_cmd[2] - vd
-        zone = cfg.vel_i_zone_m_s
-        if not state.on_ground and en * en + ee * ee + ed * ed < zone * zone:
-            lim_xy, lim_z = cfg.vel_i_max_xy_m_s2, cfg.vel_i_max_z_m_s2
-            vi[0] = _clamp(vi[0] + cfg.vel_i_xy * en * dt, -lim_xy, lim_xy)
-            vi[1] = _clamp(vi[1] + cfg.vel_i_xy * ee * dt, -lim_xy, lim_xy)
-            vi[2] = _clamp(vi[2] + cfg.vel_i_z * ed * dt, -lim_z, lim_z)
-        return (
-            cfg.vel_p_xy * en + vi[0],
-            cfg.vel_p_xy * ee + vi[1],
-            cfg.vel_p_z * ed + vi[2],
-        )
+        if not state.on_ground and en * en + ee * ee + ed * ed < g.vel_i_zone2:
+            lim, lim_z = g.vel_i_max_xy, g.vel_i_max_z
+            i0 = vi[0] + g.vel_i_xy_dt * en
+            i1 = vi[1] + g.vel_i_xy_dt * ee
+            i2 = vi[2] + g.vel_i_z_dt * ed
+            vi[0] = -lim if i0 < -lim else lim if i0 > lim else i0
+            vi[1] = -lim if i1 < -lim else lim if i1 > lim else i1
+            vi[2] = -lim_z if i2 < -lim_z else lim_z if i2 > lim_z else i2
+        return g.vel_p_xy * en + vi[0], g.vel_p_xy * ee + vi[1], g.vel_p_z * ed + vi[2]
 
     def _attitude_and_thrust(
         self, state: VehicleState, accel: tuple[float, float, float]
     ) -> tuple[float, float, float]:
         """Roll and pitch that point the thrust along ``accel - g``, and the collective."""
-        cfg = self.cfg
+        g = self._g
         an, ae, ad = accel
-        lift = _clamp(
-            GRAVITY_M_S2 - ad, MIN_LIFT_RATIO * GRAVITY_M_S2, MAX_LIFT_RATIO * GRAVITY_M_S2
-        )
+        lift = GRAVITY_M_S2 - ad
+        lift = _MIN_LIFT if lift < _MIN_LIFT else _MAX_LIFT if lift > _MAX_LIFT else lift
         horizontal = math.hypot(an, ae)
-        max_horizontal = lift * self._tan_tilt
+        max_horizontal = lift * g.tan_tilt
         if horizontal > max_horizontal:
             scale = max_horizontal / horizontal
             an, ae = an * scale, ae * scale
@@ -192,36 +259,37 @@ class FlightController:
         pitch_sp = math.atan2(-forward, lift)
         roll_sp = math.atan2(right, math.hypot(forward, lift))
         # tilt compensation with the attitude actually flown (as PX4 does)
-        tilt_cos = max(math.cos(roll) * math.cos(pitch), 0.5)
-        self.lift_ratio = lift / (GRAVITY_M_S2 * tilt_cos)
-        self.collective = throttle_for_lift(
-            self.lift_ratio, cfg.hover_throttle, cfg.thrust_curve_quadratic
-        )
+        tilt_cos = math.cos(roll) * math.cos(pitch)
+        self.lift_ratio = lift / (GRAVITY_M_S2 * (tilt_cos if tilt_cos > 0.5 else 0.5))
+        self.collective = throttle_for_lift(self.lift_ratio, g.hover_throttle, g.thrust_quadratic)
         return roll_sp, pitch_sp, self.collective
 
     def _yaw_rate(self, state: VehicleState, sp: Setpoint) -> float:
-        limit = self.cfg.max_yaw_rate_rad_s
+        g = self._g
         yaw_sp = sp.yaw_rad
         if yaw_sp - yaw_sp == 0.0:
-            rate = self.cfg.att_p_yaw * _wrap_pi(yaw_sp - state.attitude_rad[2])
+            rate = g.att_p_yaw * _wrap_pi(yaw_sp - state.attitude_rad[2])
         else:
             rate = _finite(sp.yaw_rate_rad_s, 0.0)
-        return _clamp(rate, -limit, limit)
+        limit = g.max_yaw_rate
+        return -limit if rate < -limit else limit if rate > limit else rate
 
     def _rates(
         self, state: VehicleState, roll_sp: float, pitch_sp: float, yaw_rate_sp: float
     ) -> tuple[float, float, float]:
         """Attitude P on Euler angles, turned into body rates by the Euler kinematics."""
-        cfg = self.cfg
+        g = self._g
         roll, pitch, _ = state.attitude_rad
-        roll_dot = cfg.att_p_rp * (roll_sp - roll)
-        pitch_dot = cfg.att_p_rp * (pitch_sp - pitch)
+        roll_dot = g.att_p_rp * (roll_sp - roll)
+        pitch_dot = g.att_p_rp * (pitch_sp - pitch)
         sr, cr = math.sin(roll), math.cos(roll)
         sp_, cp = math.sin(pitch), math.cos(pitch)
-        limit = cfg.max_rate_rp_rad_s
+        p = roll_dot - sp_ * yaw_rate_sp
+        q = cr * pitch_dot + sr * cp * yaw_rate_sp
+        lim = g.max_rate_rp
         return (
-            _clamp(roll_dot - sp_ * yaw_rate_sp, -limit, limit),
-            _clamp(cr * pitch_dot + sr * cp * yaw_rate_sp, -limit, limit),
+            -lim if p < -lim else lim if p > lim else p,
+            -lim if q < -lim else lim if q > lim else q,
             -sr * pitch_dot + cr * cp * yaw_rate_sp,
         )
 
@@ -229,21 +297,24 @@ class FlightController:
         self, state: VehicleState, rates_sp: tuple[float, float, float]
     ) -> tuple[float, float, float]:
         """Body-rate PID (derivative on measurement) -> normalised roll, pitch, yaw torques."""
-        cfg, dt, ri = self.cfg, self.dt_s, self._rate_int
+        g, ri = self._g, self._rate_int
         p, q, r = rates = state.rates_frd_rad_s
-        pp, pq, pr = self._prev_rates
+        pp, pq, _ = self._prev_rates
         self._prev_rates = rates
         ep, eq, er = rates_sp[0] - p, rates_sp[1] - q, rates_sp[2] - r
         if not state.on_ground:
-            lim, lim_yaw = cfg.rate_i_max, cfg.rate_i_max_yaw
-            ri[0] = _clamp(ri[0] + cfg.rate_i_rp * ep * dt, -lim, lim)
-            ri[1] = _clamp(ri[1] + cfg.rate_i_rp * eq * dt, -lim, lim)
-            ri[2] = _clamp(ri[2] + cfg.rate_i_yaw * er * dt, -lim_yaw, lim_yaw)
-        kp, kd = cfg.rate_p_rp, cfg.rate_d_rp / dt
+            lim, lim_yaw = g.rate_i_max, g.rate_i_max_yaw
+            i0 = ri[0] + g.rate_i_rp_dt * ep
+            i1 = ri[1] + g.rate_i_rp_dt * eq
+            i2 = ri[2] + g.rate_i_yaw_dt * er
+            ri[0] = -lim if i0 < -lim else lim if i0 > lim else i0
+            ri[1] = -lim if i1 < -lim else lim if i1 > lim else i1
+            ri[2] = -lim_yaw if i2 < -lim_yaw else lim_yaw if i2 > lim_yaw else i2
+        kp, kd = g.rate_p_rp, g.rate_d_rp_per_dt
         return (
             kp * ep + ri[0] - kd * (p - pp),
             kp * eq + ri[1] - kd * (q - pq),
-            cfg.rate_p_yaw * er + ri[2],
+            g.rate_p_yaw * er + ri[2],
         )
 
 

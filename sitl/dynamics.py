@@ -230,10 +230,11 @@ class Dynamics:
         """
         e0, e1, e2, e3 = esc
         s0, s1, s2, s3 = self._set_throttle
-        s0(_clip_unit(e0))
-        s1(_clip_unit(e1))
-        s2(_clip_unit(e2))
-        s3(_clip_unit(e3))
+        # clip to [0, 1] inline (hot path); NaN fails both tests and becomes 0
+        s0(e0 if 0.0 < e0 < 1.0 else 1.0 if e0 >= 1.0 else 0.0)
+        s1(e1 if 0.0 < e1 < 1.0 else 1.0 if e1 >= 1.0 else 0.0)
+        s2(e2 if 0.0 < e2 < 1.0 else 1.0 if e2 >= 1.0 else 0.0)
+        s3(e3 if 0.0 < e3 < 1.0 else 1.0 if e3 >= 1.0 else 0.0)
         prev = self._state
         north, east, down = prev.position_ned_m
         if down > self._lookup_below_down_m:
@@ -275,11 +276,6 @@ class Dynamics:
             (ax * FT_M, ay * FT_M, az * FT_M),
             wow > 0.0 or fz != 0.0,
         )
-
-
-def _clip_unit(u: float) -> float:
-    """``u`` clipped to [0, 1]; NaN becomes 0."""
-    return (u if u < 1.0 else 1.0) if u > 0.0 else 0.0
 
 
 class _SilentLogger(jsbsim.FGLogger):

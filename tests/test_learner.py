@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import hashlib
+import os
+import sys
 import threading
 import time
 
@@ -208,7 +210,7 @@ def test_readers_never_see_a_half_updated_snapshot(rng: np.random.Generator) -> 
     """Stress: training publishes after every update while readers fly snapshots."""
     ds = _dataset(rng, 200)
     learner = Learner(LearnerConfig(loss_threshold=1e-12, max_updates=10**6,
-                                    publish_every_updates=1), ds)
+                                    publish_every_updates=1, thread_nice=0), ds)
     published: dict[int, str] = {0: _digest(learner.latest_snapshot)}
     publish = learner.publish
 
@@ -265,3 +267,16 @@ def test_control_period_unaffected_by_a_busy_learner(rng: np.random.Generator) -
     jitter_ms = np.abs(np.diff(stamps) - period_s) * 1e3
     assert busy_updates > 300, f"learner did only {busy_updates} updates: not busy"
     assert float(jitter_ms.max()) < 20.0, f"period jitter up to {jitter_ms.max():.1f} ms"
+
+
+def test_thread_keeps_out_of_controls_way_and_restores_the_interpreter() -> None:
+    before = sys.getswitchinterval()
+    thread = LearnerThread(Learner(LearnerConfig(thread_nice=7, gil_switch_interval_s=0.002),
+                                   HumanDataset(None)))
+    with thread:
+        assert sys.getswitchinterval() == pytest.approx(min(before, 0.002))
+        assert _wait_for(lambda: thread.state is LearnerState.IDLE)
+        native_id = thread._thread.native_id
+        if hasattr(os, "getpriority") and native_id is not None:
+            assert os.getpriority(os.PRIO_PROCESS, native_id) >= 7
+    assert sys.getswitchinterval() == before

@@ -144,6 +144,30 @@ class ScriptedExpert(HumanInput):
         return JoystickCommand(roll=roll, pitch=pitch, yaw=0.0, throttle=throttle)
 
 
+class ProgressWatch:
+    """Whether the descent has stalled: less than ``min_descent_m`` lower over ``stall_s``.
+
+    Uses the altitude a pilot reads off the ground station (local NED ``down``). A stall
+    time of 0 disables it.
+    """
+
+    def __init__(self, stall_s: float, min_descent_m: float) -> None:
+        self.stall_ms = stall_s * 1000.0
+        self.min_descent_m = min_descent_m
+        self.restart()
+
+    def restart(self) -> None:
+        """Measure progress from the next observation on."""
+        self._since: tuple[int, float] | None = None
+
+    def stalled(self, obs: Observation) -> bool:
+        now_ms, down_m = int(obs.time_boot_ms), float(obs.position_ned_m[2])
+        if self._since is None or down_m >= self._since[1] + self.min_descent_m:
+            self._since = (now_ms, down_m)
+            return False
+        return self.stall_ms > 0 and now_ms - self._since[0] > self.stall_ms
+
+
 @dataclass(frozen=True)
 class RuleState:
     """What the intervention rule concluded at one tick (for logs and tests)."""
@@ -165,6 +189,8 @@ class InterventionRule:
     thresholds are tighter than the take-over ones, so the rule does not chatter. Once the
     vehicle is committed to touchdown (see :class:`TouchdownCommit`), a partial or missing pad
     is expected; then sliding faster than ``takeover_touchdown_speed_m_s`` is the danger.
+    A watching person also loses patience: no ``takeover_stall_descent_m`` of descent within
+    ``takeover_stall_s`` is a reason to take over too.
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
@@ -175,15 +201,18 @@ class InterventionRule:
         self._holding = False
         self._on_track_since_ms: int | None = None
         self._commit = TouchdownCommit(self.cfg)
+        self._progress = ProgressWatch(self.cfg.takeover_stall_s, self.cfg.takeover_stall_descent_m)
         self.takeovers = 0
 
     def update(self, obs: Observation) -> RuleState:
         """Advance the rule by one observation."""
         view = self._commit.update(view_of(obs, self.cfg))
-        danger = self._danger(obs, view)
+        stalled = self._progress.stalled(obs)
+        danger = self._danger(obs, view) or ("not descending" if stalled else None)
         if not self._holding:
             if danger is not None:
                 self._holding, self._on_track_since_ms = True, None
+                self._progress.restart()
                 self.takeovers += 1
             return RuleState(self._holding, danger)
         if danger is not None or not self._on_track(obs, view):
