@@ -280,3 +280,30 @@ def test_opencv_source_refuses_an_unreadable_file(tmp_path) -> None:
     path.write_bytes(b"garbage" * 10)
     with pytest.raises(CameraError, match="camera"):
         open_camera(str(path))
+
+
+def test_rendered_frame_over_the_wire_gives_the_observation() -> None:
+    """The whole camera path: render, serve, receive, detect, build the observation vector."""
+    from companion.observation import Observation
+    from companion.perception import PadDetector
+    from sitl.camera import CameraRenderer
+    from sitl.config import CameraConfig, WorldConfig
+    from sitl.world import World
+
+    renderer = CameraRenderer(CameraConfig(), World(WorldConfig()))
+    camera_ned = renderer.world.pad_ned(0.0) + [1.0, 0.0, -4.0]  # pad 1 m south -> 40 px down
+    with FrameServer() as server:
+        source = open_camera(server.uri)
+        try:
+            assert wait_until(lambda: server.client_count == 1)
+            server.publish(Frame(0, 2000, renderer.render(camera_ned, [0, 0, 0], 2.0)), blocking=True)
+            frame = source.frame_at(2000, 2.0)
+        finally:
+            source.close()
+    assert frame is not None
+    pad = PadDetector().detect(frame.image)
+    assert pad is not None and (pad.u_px, pad.v_px) == pytest.approx((159.5, 159.5), abs=0.5)
+    obs = Observation(camera_ned, (0, 0, 0), (0, 0, 0), (0, 0, 0), pad, frame.size_px, frame.time_boot_ms)
+    vec = obs.to_vector()
+    assert vec[12:14] == pytest.approx([0.0, 40 / 120], abs=0.01)
+    assert vec[14] == pytest.approx(20 / 120, rel=0.05)  # 160 px * 0.5 m / 4 m = 20 px
