@@ -10,7 +10,7 @@ Metrics: centre and radius errors and misses over frames with the pad fully in v
 positives over frames with the pad out of view; median render and detect times. The machine may
 be shared with other jobs, so times vary between runs. The last line of stdout is one JSON object.
 
-    python bench/perception.py [--quick] [--frames N] [--seed S] [--lighting] [--blur] [--jpeg]
+    python bench/perception.py [--quick] [--frames N] [--seed S] [--lighting] [--blur] [--noise] [--jpeg]
 """
 
 from __future__ import annotations
@@ -63,8 +63,10 @@ def truth(renderer: CameraRenderer, pad_ned: np.ndarray, radius_m: float, positi
     return {"view": "out" if overlap <= 0 else "partial", "centre": centre, "radius": radius}
 
 
-def perturb(image: np.ndarray, rng: np.random.Generator, lighting: bool, blur: bool, jpeg: bool) -> np.ndarray:
-    """Optional lighting gain (0.4-1.6), motion blur (3 to 7 px, any direction), JPEG transport."""
+def perturb(image: np.ndarray, rng: np.random.Generator, conditions: dict) -> np.ndarray:
+    """Optional lighting gain (0.4-1.6), motion blur (3 to 7 px, any direction), sensor noise
+    (Gaussian, sigma 8 levels) and the JPEG wire encoding, in that order."""
+    lighting, blur, noise, jpeg = (conditions[k] for k in ("lighting", "blur", "noise", "jpeg"))
     if lighting:
         image = cv2.convertScaleAbs(image, alpha=float(rng.uniform(0.4, 1.6)))
     if blur:
@@ -74,12 +76,15 @@ def perturb(image: np.ndarray, rng: np.random.Generator, lighting: bool, blur: b
         kernel = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
         cv2.line(kernel, (half - dx, half - dy), (half + dx, half + dy), 1.0, 1)
         image = cv2.filter2D(image, -1, kernel / kernel.sum())
+    if noise:
+        image = np.clip(image + rng.normal(0.0, 8.0, image.shape), 0, 255).astype(np.uint8)
     if jpeg:
         image = decode_frame(encode_frame(Frame(0, 0, image), "jpeg")).image
     return image
 
 
-def run(frames: int, seed: int, lighting: bool, blur: bool, jpeg: bool) -> dict:
+def run(frames: int, seed: int, conditions: dict) -> dict:
+    """``conditions``: booleans ``lighting``, ``blur``, ``noise``, ``jpeg`` (see perturb)."""
     rng = np.random.default_rng(seed)
     world_cfg = WorldConfig()
     renderer = CameraRenderer(CameraConfig(), World(world_cfg))
@@ -92,7 +97,7 @@ def run(frames: int, seed: int, lighting: bool, blur: bool, jpeg: bool) -> dict:
         t0 = time.perf_counter()
         image = renderer.render(position, attitude, 0.0)
         t1 = time.perf_counter()
-        image = perturb(image, rng, lighting, blur, jpeg)
+        image = perturb(image, rng, conditions)
         t2 = time.perf_counter()
         found = detector.detect(image)
         t3 = time.perf_counter()
@@ -110,8 +115,7 @@ def run(frames: int, seed: int, lighting: bool, blur: bool, jpeg: bool) -> dict:
                 continue
             centre_err.append(math.hypot(found.u_px - gt["centre"][0], found.v_px - gt["centre"][1]))
             radius_err.append(abs(found.radius_px - gt["radius"]) / gt["radius"])
-    conditions = {"seed": seed, "lighting": lighting, "blur": blur, "jpeg": jpeg}
-    return summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, conditions)
+    return summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, {"seed": seed, **conditions})
 
 
 def summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, conditions) -> dict:
@@ -140,10 +144,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--lighting", action="store_true", help="random brightness gain per frame")
     parser.add_argument("--blur", action="store_true", help="random motion blur per frame")
+    parser.add_argument("--noise", action="store_true", help="Gaussian sensor noise, sigma 8 levels")
     parser.add_argument("--jpeg", action="store_true", help="send frames through the JPEG wire encoding")
     args = parser.parse_args()
     frames = args.frames or (100 if args.quick else 600)
-    print(json.dumps(run(frames, args.seed, args.lighting, args.blur, args.jpeg)))
+    conditions = {k: getattr(args, k) for k in ("lighting", "blur", "noise", "jpeg")}
+    print(json.dumps(run(frames, args.seed, conditions)))
 
 
 if __name__ == "__main__":

@@ -79,6 +79,12 @@ def test_motion_blur(renderer, detector, length_px: int) -> None:
     assert_close(detector.detect(cv2.filter2D(image, -1, kernel)), centre, radius, 1.5, 0.1)
 
 
+def test_sensor_noise(renderer, detector, rng) -> None:
+    image, centre, radius = view(renderer, -1.0, 0.7, 6.0, (0.15, -0.1, 2.0))
+    noisy = np.clip(image + rng.normal(0.0, 10.0, image.shape), 0, 255).astype(np.uint8)
+    assert_close(detector.detect(noisy), centre, radius, 1.0, 0.1)
+
+
 def test_partial_pad_with_dot_in_view_keeps_the_centre(renderer, detector) -> None:
     # Pad 1.5 m west at 2 m: centre at u = 39.5, radius 40 px -> cut by the left border.
     image, centre, radius = view(renderer, 0.0, 1.5, 2.0)
