@@ -64,11 +64,11 @@ class AutopilotConfig(Section):
     vel_p_xy: float = Field(3.5, ge=0, description="velocity error -> acceleration, 1/s")
     vel_i_xy: float = Field(1.0, ge=0, description="1/s^2")
     vel_i_max_xy_m_s2: float = Field(2.0, ge=0)
-    vel_p_z: float = Field(4.0, ge=0, description="1/s")
-    vel_i_z: float = Field(3.0, ge=0, description="1/s^2")
+    vel_p_z: float = Field(5.0, ge=0, description="1/s")
+    vel_i_z: float = Field(2.0, ge=0, description="1/s^2")
     vel_i_max_z_m_s2: float = Field(4.0, ge=0)
     vel_i_zone_m_s: float = Field(
-        0.3, ge=0, description="velocity integrators run only while the error is below this"
+        0.3, ge=0, description="horizontal velocity integrators run only below this error"
     )
     att_p_rp: float = Field(7.0, ge=0, description="roll/pitch error -> Euler rate, 1/s")
     att_p_yaw: float = Field(3.0, ge=0, description="yaw error -> yaw rate, 1/s")

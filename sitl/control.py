@@ -224,20 +224,26 @@ class FlightController:
     ) -> tuple[float, float, float]:
         """Velocity PI -> desired NED acceleration.
 
-        Integrators only run near the setpoint (so a step does not wind them up into a slow
-        overshoot) and freeze while touching a surface, where contact forces would.
+        Horizontal integrators only run near the setpoint (so a step does not wind them up
+        into a slow overshoot; the vertical one must always run, it learns the hover thrust,
+        but not while the thrust saturates).
+        All freeze while touching a surface, where contact forces would wind them up.
         """
         g, vi = self._g, self._vel_int
         vn, ve, vd = state.velocity_ned_m_s
         en, ee, ed = vel_cmd[0] - vn, vel_cmd[1] - ve, vel_cmd[2] - vd
-        if not state.on_ground and en * en + ee * ee + ed * ed < g.vel_i_zone2:
-            lim, lim_z = g.vel_i_max_xy, g.vel_i_max_z
-            i0 = vi[0] + g.vel_i_xy_dt * en
-            i1 = vi[1] + g.vel_i_xy_dt * ee
+        if not state.on_ground:
+            if en * en + ee * ee < g.vel_i_zone2:
+                lim = g.vel_i_max_xy
+                i0 = vi[0] + g.vel_i_xy_dt * en
+                i1 = vi[1] + g.vel_i_xy_dt * ee
+                vi[0] = -lim if i0 < -lim else lim if i0 > lim else i0
+                vi[1] = -lim if i1 < -lim else lim if i1 > lim else i1
+            lim_z = g.vel_i_max_z
             i2 = vi[2] + g.vel_i_z_dt * ed
-            vi[0] = -lim if i0 < -lim else lim if i0 > lim else i0
-            vi[1] = -lim if i1 < -lim else lim if i1 > lim else i1
-            vi[2] = -lim_z if i2 < -lim_z else lim_z if i2 > lim_z else i2
+            i2 = -lim_z if i2 < -lim_z else lim_z if i2 > lim_z else i2
+            if _MIN_LIFT < GRAVITY_M_S2 - g.vel_p_z * ed - i2 < _MAX_LIFT:  # no windup
+                vi[2] = i2
         return g.vel_p_xy * en + vi[0], g.vel_p_xy * ee + vi[1], g.vel_p_z * ed + vi[2]
 
     def _attitude_and_thrust(

@@ -313,3 +313,22 @@ def test_takes_off_from_the_ground(sim) -> None:
     states = fly(sim, Setpoint(position_ned_m=(6.0, 6.0, -2.5)), 6.0)
     assert states[-1].position_ned_m == pytest.approx((6.0, 6.0, -2.5), abs=0.05)
     assert not states[-1].on_ground
+
+
+def test_climb_to_descent_reversal_respects_the_descent_limit(sim) -> None:
+    start(sim, position=(6.0, 6.0, -30.0))
+    fly(sim, Setpoint(velocity_ned_m_s=(3.0, 3.0, -3.0)), 3.0)
+    states = fly(sim, Setpoint(velocity_ned_m_s=(0.0, 0.0, 10.0)), 4.0)
+    assert max(s.velocity_ned_m_s[2] for s in states) < CFG.max_speed_down_m_s + 0.1
+    assert states[-1].velocity_ned_m_s[2] == pytest.approx(CFG.max_speed_down_m_s, abs=0.05)
+
+
+def test_a_wrong_hover_throttle_is_learnt_by_the_integrator() -> None:
+    cfg = CFG.model_copy(update={"hover_throttle": 0.38})
+    dyn = Dynamics()
+    fc = FlightController(cfg, dyn.dt_s)
+    state = dyn.reset((0.0, 0.0, -10.0))
+    hold = Setpoint(position_ned_m=(0.0, 0.0, -10.0))
+    for _ in range(round(10.0 / dyn.dt_s)):
+        state = dyn.step(fc.update(state, hold, True))
+    assert state.position_ned_m[2] == pytest.approx(-10.0, abs=0.02)
