@@ -118,7 +118,7 @@ def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radiu
 
 def rotation_ned_from_body(attitude_rad: ArrayLike) -> np.ndarray:
     """Body FRD -> NED rotation from roll, pitch, yaw (aerospace ZYX order)."""
-    roll, pitch, yaw = (float(a) for a in attitude_rad)
+    roll, pitch, yaw = (float(a) for a in np.asarray(attitude_rad, dtype=float).reshape(3))
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
     return np.array(
         [
@@ -177,7 +177,7 @@ class CameraRenderer:
         """The camera image at pose (NED position, roll/pitch/yaw) and world time ``t_s``."""
         pos = np.array(position_ned_m, dtype=float)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(np.asarray(attitude_rad, dtype=float)))):
-            raise ValueError(f"camera pose must be finite, got position {pos} attitude {attitude_rad}")
+            raise ValueError(f"camera pose must be finite, got position {pos} attitude {np.asarray(attitude_rad)}")
         pos[2] = min(pos[2], -_MIN_HEIGHT_M)  # on (or numerically under) the ground: look from just above it
         proj = self.world_to_image(pos, attitude_rad)
         image = self._draw_ground(proj, pos)

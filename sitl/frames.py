@@ -108,12 +108,11 @@ def decode_payload(header: FrameHeader, payload: bytes) -> Frame:
         raise CameraError(f"frame payload is {len(payload)} bytes, header says {header.payload_len}: truncated")
     shape = (header.height, header.width, 3)
     if header.encoding == 0:
-        image = np.frombuffer(payload, np.uint8).reshape(shape).copy()
-    else:
-        image = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR)
-        if image is None or image.shape != shape:
-            raise CameraError(f"JPEG payload of frame {header.frame_number} does not decode to {header.width}x{header.height}")
-    return Frame(header.frame_number, header.time_boot_ms, image)
+        return Frame(header.frame_number, header.time_boot_ms, np.frombuffer(payload, np.uint8).reshape(shape).copy())
+    decoded = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR)
+    if decoded is None or decoded.shape != shape:
+        raise CameraError(f"JPEG payload of frame {header.frame_number} does not decode to {header.width}x{header.height}")
+    return Frame(header.frame_number, header.time_boot_ms, np.asarray(decoded, np.uint8))
 
 
 def decode_frame(data: bytes) -> Frame:
@@ -190,6 +189,7 @@ class _Client:
                 if not self.alive:
                     return
                 data, seq, self._pending = self._pending, self._pending_seq, None
+            assert data is not None
             try:
                 self.sock.sendall(data)
             except OSError:  # reader gone, or too slow for write_timeout_s: the stream is broken
