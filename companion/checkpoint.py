@@ -27,14 +27,8 @@ import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import CheckpointError
-from companion.policy import (
-    ACTION_NAMES,
-    DEFAULT_OBS_DIM,
-    OBS_NAMES,
-    Normalisation,
-    PolicyNet,
-    PolicySnapshot,
-)
+from companion.observation import OBS_DIM, OBS_NAMES
+from companion.policy import ACTION_NAMES, Normalisation, PolicyNet, PolicySnapshot
 
 FORMAT_NAME = "col-policy"
 FORMAT_VERSION = 1
@@ -133,11 +127,13 @@ def _write_atomically(path: Path, data: bytes) -> Path:
     return path
 
 
-def load_checkpoint(path: str | Path, *, obs_dim: int | None = DEFAULT_OBS_DIM,
-                    obs_names: Sequence[str] | None = None) -> tuple[PolicySnapshot, CheckpointMeta]:
+def load_checkpoint(path: str | Path, *, obs_dim: int | None = OBS_DIM,
+                    obs_names: Sequence[str] | None = OBS_NAMES
+                    ) -> tuple[PolicySnapshot, CheckpointMeta]:
     """Read a checkpoint; CheckpointError if it is missing, corrupt or incompatible.
 
-    ``obs_dim`` (None: any) and ``obs_names`` (None: any) must match the file's.
+    ``obs_dim`` and ``obs_names`` (None: accept any) must match the file's: a policy trained
+    on another observation layout would fly nonsense.
     """
     p = Path(path)
     arrays = _read_arrays(p)

@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from companion.errors import DatasetCorrupt
-from companion.policy import ACT_DIM, ACTION_NAMES, OBS_NAMES
+from companion.observation import OBS_NAMES
+from companion.policy import ACT_DIM, ACTION_NAMES
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,8 @@ import torch.nn.functional as F
 
 from companion.config import LearnerConfig
 from companion.dataset import DatasetView
-from companion.policy import DEFAULT_OBS_DIM, Normalisation, PolicyNet, PolicySnapshot
+from companion.observation import OBS_DIM
+from companion.policy import Normalisation, PolicyNet, PolicySnapshot
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +68,7 @@ class Learner:
         config: LearnerConfig,
         dataset: SampleSource,
         *,
-        obs_dim: int = DEFAULT_OBS_DIM,
+        obs_dim: int = OBS_DIM,
         normalisation: Normalisation | None = None,
         initial: PolicySnapshot | None = None,
         rng: np.random.Generator | None = None,

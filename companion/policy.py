@@ -19,14 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
-try:
-    from companion.observation import OBS_DIM as DEFAULT_OBS_DIM
-    from companion.observation import OBS_NAMES
-except ModuleNotFoundError as _exc:  # observation.py not written yet: same size, generic names
-    if _exc.name != "companion.observation":
-        raise
-    DEFAULT_OBS_DIM = 15
-    OBS_NAMES = tuple(f"obs_{i}" for i in range(DEFAULT_OBS_DIM))
+from companion.observation import OBS_DIM
 
 ACTION_NAMES: tuple[str, ...] = ("roll", "pitch", "yaw", "throttle")
 ACT_DIM = len(ACTION_NAMES)
@@ -56,7 +49,7 @@ class Normalisation:
         object.__setattr__(self, "std", std)
 
     @classmethod
-    def identity(cls, dim: int = DEFAULT_OBS_DIM) -> Normalisation:
+    def identity(cls, dim: int = OBS_DIM) -> Normalisation:
         """No scaling: for observations that are already normalised upstream."""
         return cls(np.zeros(dim, np.float32), np.ones(dim, np.float32))
 
@@ -70,7 +63,7 @@ class PolicyNet(nn.Module):
 
     def __init__(
         self,
-        obs_dim: int = DEFAULT_OBS_DIM,
+        obs_dim: int = OBS_DIM,
         hidden: Sequence[int] = (130, 72, 40),
         *,
         init_std: float = 0.1,

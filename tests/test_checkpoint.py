@@ -14,7 +14,8 @@ import torch
 from companion.checkpoint import FORMAT_VERSION, load_checkpoint, save_checkpoint
 from companion.config import LearnerConfig
 from companion.errors import CheckpointError
-from companion.policy import OBS_NAMES, Normalisation, PolicyNet, PolicySnapshot
+from companion.observation import OBS_NAMES
+from companion.policy import Normalisation, PolicyNet, PolicySnapshot
 
 
 def _snapshot(rng: np.random.Generator, obs_dim: int = 15) -> PolicySnapshot:
@@ -106,9 +107,15 @@ def test_other_observation_refused(tmp_path: Path, rng) -> None:
     path = _save(tmp_path / "c.npz", _snapshot(rng, obs_dim=12), obs_names=names)
     with pytest.raises(CheckpointError, match="takes 12 observation values"):
         load_checkpoint(path)
-    assert load_checkpoint(path, obs_dim=12)[0].obs_dim == 12
+    assert load_checkpoint(path, obs_dim=12, obs_names=names)[0].obs_dim == 12
     with pytest.raises(CheckpointError, match="same observation layout"):
         load_checkpoint(path, obs_dim=None, obs_names=[f"g{i}" for i in range(12)])
+
+
+def test_same_size_other_observation_order_refused(tmp_path: Path, rng) -> None:
+    path = _save(tmp_path / "c.npz", _snapshot(rng), obs_names=list(reversed(OBS_NAMES)))
+    with pytest.raises(CheckpointError, match="same observation layout"):
+        load_checkpoint(path)
 
 
 def test_inconsistent_metadata_refused(tmp_path: Path, rng) -> None:

@@ -17,7 +17,7 @@ import pytest
 
 from companion.dataset import HumanDataset, Sample, Source, csv_header, load_csv
 from companion.errors import DatasetCorrupt
-from companion.policy import OBS_NAMES
+from companion.observation import OBS_NAMES
 
 
 def _sample(i: int, episode: int = 0, source: Source = Source.DEMONSTRATION) -> Sample:

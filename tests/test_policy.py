@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from companion.policy import ACT_DIM, DEFAULT_OBS_DIM, Normalisation, PolicyNet, PolicySnapshot
+from companion.observation import OBS_DIM
+from companion.policy import ACT_DIM, Normalisation, PolicyNet, PolicySnapshot
 
 
 def _net(seed: int = 0, **kw) -> PolicyNet:
@@ -17,7 +18,7 @@ def _net(seed: int = 0, **kw) -> PolicyNet:
 
 def test_paper_shape_and_normal_init() -> None:
     net = _net(init_std=0.1)
-    assert net.obs_dim == DEFAULT_OBS_DIM == 15
+    assert net.obs_dim == OBS_DIM == 15
     assert net.hidden == (130, 72, 40)
     assert net.layers[-1].out_features == ACT_DIM == 4
     w = net.layers[1].weight.detach().numpy()
