@@ -1,6 +1,6 @@
 """The simulated autopilot's flight control cascade, as in PX4's multicopter stack.
 
-position P -> velocity PID -> desired acceleration -> roll/pitch (tilt-limited) and collective
+position P -> velocity PI -> desired acceleration -> roll/pitch (tilt-limited) and collective
 thrust (hover- and tilt-compensated) -> attitude P -> body-rate PID -> quad-X mixer -> ESCs.
 
 Everything runs at the FDM rate on plain floats: this loop and the FDM step must together run
@@ -30,6 +30,7 @@ from sitl.dynamics import GRAVITY_M_S2, VehicleState
 
 NAN = math.nan
 NAN3 = (NAN, NAN, NAN)
+# each motor's share of a roll, pitch, yaw command (the table above; mix() spells it out)
 MOTOR_ROLL = (-1.0, 1.0, 1.0, -1.0)
 MOTOR_PITCH = (1.0, -1.0, 1.0, -1.0)
 MOTOR_YAW = (1.0, 1.0, -1.0, -1.0)

@@ -10,6 +10,9 @@ from sitl.config import AutopilotConfig, WorldConfig
 from sitl.control import (
     ESC_OFF,
     HOLD,
+    MOTOR_PITCH,
+    MOTOR_ROLL,
+    MOTOR_YAW,
     FlightController,
     LandDetector,
     Setpoint,
@@ -41,6 +44,7 @@ def torques(esc: tuple[float, float, float, float]) -> tuple[float, float, float
     ],
 )
 def test_each_axis_moves_the_motors_with_the_documented_signs(axis, expected) -> None:
+    assert expected == {"roll": MOTOR_ROLL, "pitch": MOTOR_PITCH, "yaw": MOTOR_YAW}[axis]
     command = {"roll": 0.0, "pitch": 0.0, "yaw": 0.0, axis: 0.1}
     esc = mix(0.5, **command)
     for value, sign in zip(esc, expected, strict=True):
