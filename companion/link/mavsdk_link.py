@@ -32,48 +32,21 @@ from companion.link.base import (
     VehicleLink,
     VehicleSnapshot,
 )
-from companion.link.connection import parse_connection
 from companion.link.manual_control import manual_control_from_fields
+from companion.link.mavsdk_convert import (
+    finite3,
+    fold_flight_mode,
+    fold_landed_state,
+    fold_position_velocity,
+    fold_rates,
+    initial_snapshot,
+    mavsdk_url,
+    route_mavsdk_log,
+    translate_result,
+)
 from companion.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
-mavsdk_log = logging.getLogger("mavsdk")
-
-# MAVSDK FlightMode / LandedState names -> the PX4 / MAVLink names VehicleSnapshot uses
-FLIGHT_MODES = {
-    "READY": "AUTO.READY", "TAKEOFF": "AUTO.TAKEOFF", "HOLD": "AUTO.LOITER",
-    "MISSION": "AUTO.MISSION", "RETURN_TO_LAUNCH": "AUTO.RTL", "LAND": "AUTO.LAND",
-    "FOLLOW_ME": "AUTO.FOLLOW_TARGET", "OFFBOARD": "OFFBOARD", "MANUAL": "MANUAL",
-    "ALTCTL": "ALTCTL", "POSCTL": "POSCTL", "ACRO": "ACRO", "STABILIZED": "STABILIZED",
-    "RATTITUDE": "RATTITUDE",
-}  # fmt: skip
-LANDED = {"UNKNOWN": "UNDEFINED", "TAKING_OFF": "TAKEOFF"}
-# MAVSDK result names -> MAV_RESULT names, so callers see one vocabulary
-RESULTS = {"COMMAND_DENIED": "DENIED", "BUSY": "TEMPORARILY_REJECTED"}
-LOST_RESULTS = {"NO_SYSTEM", "CONNECTION_ERROR"}
-
-
-def mavsdk_url(connection: str, baud: int) -> str:
-    """MAVSDK's URL for a MAVLink-tools connection string (udpin:H:P -> udpin://H:P ...)."""
-    spec = parse_connection(connection, baud)
-    if spec.kind == "serial":
-        return f"serial://{spec.device}:{spec.baud}"
-    scheme, rest = spec.device.split(":", 1)
-    return f"{ {'tcp': 'tcpout'}.get(scheme, scheme) }://{rest}"
-
-
-def _route_mavsdk_log() -> None:
-    """Send MAVSDK's own log to Python logging (it prints to stdout otherwise)."""
-    from mavsdk import LogLevel, log_subscribe
-
-    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
-              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}  # fmt: skip
-
-    def forward(level: Any, message: str, _file: str | None, _line: int) -> bool:
-        mavsdk_log.log(levels.get(level, logging.INFO), "%s", message)
-        return True
-
-    log_subscribe(forward)
 
 
 class MavsdkLink(VehicleLink):
@@ -109,7 +82,7 @@ class MavsdkLink(VehicleLink):
         if self._closed:
             raise LinkLost("this link was closed; open a new one")
         if self._runner is None:
-            _route_mavsdk_log()
+            route_mavsdk_log()
             self._runner = AsyncRunner("mavsdk-link")
         try:
             self._runner.run(self._connect(timeout_s), timeout_s + 2.0)
@@ -147,7 +120,7 @@ class MavsdkLink(VehicleLink):
         self._plugins = {"telemetry": TelemetryAsync(self._system),
                          "action": ActionAsync(self._system),
                          "offboard": OffboardAsync(self._system)}  # fmt: skip
-        self._publish(_initial_snapshot(system_id, autopilot, time.monotonic()))
+        self._publish(initial_snapshot(system_id, autopilot, time.monotonic()))
         self._start_streams()
 
     def close(self) -> None:
@@ -169,12 +142,12 @@ class MavsdkLink(VehicleLink):
     def _start_streams(self) -> None:
         tel = self._plugins["telemetry"]
         streams: list[tuple[Any, Callable[[VehicleSnapshot, Any], VehicleSnapshot]]] = [
-            (tel.subscribe_position_velocity_ned(), _position_velocity),
+            (tel.subscribe_position_velocity_ned(), fold_position_velocity),
             (tel.subscribe_attitude_euler(), self._attitude),
-            (tel.subscribe_attitude_angular_velocity_body(), _rates),
+            (tel.subscribe_attitude_angular_velocity_body(), fold_rates),
             (tel.subscribe_armed(), lambda s, v: replace(s, armed=bool(v))),
-            (tel.subscribe_flight_mode(), _flight_mode),
-            (tel.subscribe_landed_state(), _landed_state),
+            (tel.subscribe_flight_mode(), fold_flight_mode),
+            (tel.subscribe_landed_state(), fold_landed_state),
         ]
         for stream, fold in streams:
             _background(self._follow(stream, fold))
@@ -198,7 +171,7 @@ class MavsdkLink(VehicleLink):
             self._publish(replace(new, received_s=now))
 
     def _attitude(self, s: VehicleSnapshot, euler: Any) -> VehicleSnapshot:
-        attitude = _finite3(math.radians(euler.roll_deg), math.radians(euler.pitch_deg),
+        attitude = finite3(math.radians(euler.roll_deg), math.radians(euler.pitch_deg),
                             math.radians(euler.yaw_deg))  # fmt: skip
         stamp_ms = int(euler.timestamp_us // 1000) or int((time.monotonic() - self._t0) * 1000)
         if s.frame_time_boot_ms is not None and stamp_ms <= s.frame_time_boot_ms:
@@ -383,7 +356,7 @@ class MavsdkLink(VehicleLink):
             result = getattr(getattr(exc, "result", None), "name", None)
             if result is None:
                 raise
-            raise _translate(what, result) from exc
+            raise translate_result(what, result) from exc
 
     # ================================================================ setpoints
     def send_velocity_body(
@@ -461,50 +434,3 @@ def _check_echo(echo_time_boot_ms: int | None) -> None:
     """Same argument checks as the pymavlink link, though MAVSDK cannot send the echo."""
     if echo_time_boot_ms is not None and not 0 <= int(echo_time_boot_ms) < 2**32:
         raise ValueError(f"echo_time_boot_ms {echo_time_boot_ms} is not a uint32 ms stamp")
-
-
-def _translate(what: str, result: str) -> Exception:
-    if result == "TIMEOUT":
-        return LinkTimeout(f"{what}: the vehicle did not answer (MAVSDK TIMEOUT)")
-    if result in LOST_RESULTS:
-        return LinkLost(f"{what}: MAVSDK reports {result}; check the connection")
-    return CommandRejected(
-        what,
-        RESULTS.get(result, result),
-        "read the vehicle's status messages, fix the cause and retry",
-    )
-
-
-def _finite3(a: float, b: float, c: float) -> tuple[float, float, float]:
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
-        raise ValueError("non-finite telemetry")
-    return (float(a), float(b), float(c))
-
-
-def _initial_snapshot(system_id: int, autopilot: str, now_s: float) -> VehicleSnapshot:
-    zero = (0.0, 0.0, 0.0)
-    return VehicleSnapshot(
-        received_s=now_s, time_boot_ms=0, frame_time_boot_ms=None, system_id=system_id,
-        autopilot=autopilot, armed=False, mode="UNKNOWN", landed_state="UNDEFINED",
-        position_ned_m=zero, velocity_ned_m_s=zero, attitude_rad=zero, rates_frd_rad_s=zero,
-        heartbeat_s=now_s,
-    )  # fmt: skip
-
-
-def _position_velocity(s: VehicleSnapshot, pv: Any) -> VehicleSnapshot:
-    p, v = pv.position, pv.velocity
-    return replace(s, position_ned_m=_finite3(p.north_m, p.east_m, p.down_m),
-                   velocity_ned_m_s=_finite3(v.north_m_s, v.east_m_s, v.down_m_s),
-                   position_valid=True)  # fmt: skip
-
-
-def _rates(s: VehicleSnapshot, w: Any) -> VehicleSnapshot:
-    return replace(s, rates_frd_rad_s=_finite3(w.roll_rad_s, w.pitch_rad_s, w.yaw_rad_s))
-
-
-def _flight_mode(s: VehicleSnapshot, mode: Any) -> VehicleSnapshot:
-    return replace(s, mode=FLIGHT_MODES.get(mode.name, mode.name), heartbeat_s=time.monotonic())
-
-
-def _landed_state(s: VehicleSnapshot, state: Any) -> VehicleSnapshot:
-    return replace(s, landed_state=LANDED.get(state.name, state.name))

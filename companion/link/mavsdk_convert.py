@@ -1,0 +1,104 @@
+"""MAVSDK's names, results and telemetry types, turned into the companion's.
+
+Pure functions and tables, kept apart from :mod:`companion.link.mavsdk_link` (which runs the
+event loop) so that they read and test without a vehicle.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import replace
+from typing import Any
+
+from companion.errors import CommandRejected, LinkLost, LinkTimeout
+from companion.link.base import VehicleSnapshot
+from companion.link.connection import parse_connection
+
+mavsdk_log = logging.getLogger("mavsdk")
+
+# MAVSDK FlightMode / LandedState names -> the PX4 / MAVLink names VehicleSnapshot uses
+FLIGHT_MODES = {
+    "READY": "AUTO.READY", "TAKEOFF": "AUTO.TAKEOFF", "HOLD": "AUTO.LOITER",
+    "MISSION": "AUTO.MISSION", "RETURN_TO_LAUNCH": "AUTO.RTL", "LAND": "AUTO.LAND",
+    "FOLLOW_ME": "AUTO.FOLLOW_TARGET", "OFFBOARD": "OFFBOARD", "MANUAL": "MANUAL",
+    "ALTCTL": "ALTCTL", "POSCTL": "POSCTL", "ACRO": "ACRO", "STABILIZED": "STABILIZED",
+    "RATTITUDE": "RATTITUDE",
+}  # fmt: skip
+LANDED = {"UNKNOWN": "UNDEFINED", "TAKING_OFF": "TAKEOFF"}
+# MAVSDK result names -> MAV_RESULT names, so callers see one vocabulary
+RESULTS = {"COMMAND_DENIED": "DENIED", "BUSY": "TEMPORARILY_REJECTED"}
+LOST_RESULTS = {"NO_SYSTEM", "CONNECTION_ERROR"}
+URL_SCHEMES = {"tcp": "tcpout"}  # ours -> MAVSDK's, where they differ
+
+
+def mavsdk_url(connection: str, baud: int) -> str:
+    """MAVSDK's URL for a MAVLink-tools connection string (udpin:H:P -> udpin://H:P ...)."""
+    spec = parse_connection(connection, baud)
+    if spec.kind == "serial":
+        return f"serial://{spec.device}:{spec.baud}"
+    scheme, rest = spec.device.split(":", 1)
+    return f"{URL_SCHEMES.get(scheme, scheme)}://{rest}"
+
+
+def route_mavsdk_log() -> None:
+    """Send MAVSDK's own log to Python logging (it prints to stdout otherwise)."""
+    from mavsdk import LogLevel, log_subscribe
+
+    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
+              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}  # fmt: skip
+
+    def forward(level: Any, message: str, _file: str | None, _line: int) -> bool:
+        mavsdk_log.log(levels.get(level, logging.INFO), "%s", message)
+        return True
+
+    log_subscribe(forward)
+
+
+def translate_result(what: str, result: str) -> Exception:
+    """The companion error for a MAVSDK result name that is not SUCCESS."""
+    if result == "TIMEOUT":
+        return LinkTimeout(f"{what}: the vehicle did not answer (MAVSDK TIMEOUT)")
+    if result in LOST_RESULTS:
+        return LinkLost(f"{what}: MAVSDK reports {result}; check the connection")
+    return CommandRejected(
+        what,
+        RESULTS.get(result, result),
+        "read the vehicle's status messages, fix the cause and retry",
+    )
+
+
+def finite3(a: float, b: float, c: float) -> tuple[float, float, float]:
+    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+        raise ValueError("non-finite telemetry")
+    return (float(a), float(b), float(c))
+
+
+def initial_snapshot(system_id: int, autopilot: str, now_s: float) -> VehicleSnapshot:
+    zero = (0.0, 0.0, 0.0)
+    return VehicleSnapshot(
+        received_s=now_s, time_boot_ms=0, frame_time_boot_ms=None, system_id=system_id,
+        autopilot=autopilot, armed=False, mode="UNKNOWN", landed_state="UNDEFINED",
+        position_ned_m=zero, velocity_ned_m_s=zero, attitude_rad=zero, rates_frd_rad_s=zero,
+        heartbeat_s=now_s,
+    )  # fmt: skip
+
+
+def fold_position_velocity(s: VehicleSnapshot, pv: Any) -> VehicleSnapshot:
+    p, v = pv.position, pv.velocity
+    return replace(s, position_ned_m=finite3(p.north_m, p.east_m, p.down_m),
+                   velocity_ned_m_s=finite3(v.north_m_s, v.east_m_s, v.down_m_s),
+                   position_valid=True)  # fmt: skip
+
+
+def fold_rates(s: VehicleSnapshot, w: Any) -> VehicleSnapshot:
+    return replace(s, rates_frd_rad_s=finite3(w.roll_rad_s, w.pitch_rad_s, w.yaw_rad_s))
+
+
+def fold_flight_mode(s: VehicleSnapshot, mode: Any) -> VehicleSnapshot:
+    return replace(s, mode=FLIGHT_MODES.get(mode.name, mode.name), heartbeat_s=time.monotonic())
+
+
+def fold_landed_state(s: VehicleSnapshot, state: Any) -> VehicleSnapshot:
+    return replace(s, landed_state=LANDED.get(state.name, state.name))
