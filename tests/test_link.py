@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import socket
 import struct
 import time
 from collections.abc import Callable, Iterator
@@ -20,7 +21,12 @@ from companion.link.mavlink_link import MavlinkLink
 from companion.setpoints import VelocitySetpoint
 from companion.testing import FakeVehicle
 from companion.testing.link_contract import run_link_contract
-from tests.conftest import free_port
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def _until(test: Callable[[], bool], timeout_s: float = 2.0) -> bool:
@@ -120,7 +126,7 @@ def test_handshake_heartbeats_both_ways(fake, make_link) -> None:
 
 
 def test_link_listening_with_udpin_finds_a_vehicle_that_sends_first() -> None:
-    port = free_port()
+    port = free_udp_port()
     with FakeVehicle(remote=("127.0.0.1", port), heartbeat_period_s=0.1) as fake:
         with MavlinkLink(LinkConfig(connection=f"udpin:127.0.0.1:{port}")) as link:
             link.connect(timeout_s=2.0)
@@ -425,3 +431,56 @@ def test_tlog_records_both_directions_and_pymavlink_reads_it(fake, make_link, tm
 def test_pymavlink_link_meets_the_contract_against_the_fake(fake, make_link) -> None:
     names = run_link_contract(make_link())
     assert "arm_disarm" in names and "frames" in names
+
+
+# ------------------------------------------------------------------ pure folding rules
+def _encoder(system: int = 1, component: int = 1):
+    return mavlink.MAVLink(None, srcSystem=system, srcComponent=component)
+
+
+def _decoded(msg, encoder):
+    """A message as it arrives: packed and parsed, so source ids are set."""
+    return mavlink.MAVLink(None).decode(bytearray(msg.pack(encoder)))
+
+
+def test_telemetry_folds_into_a_new_snapshot_and_marks_frames() -> None:
+    from companion.link.telemetry import apply_message, initial_snapshot
+
+    enc = _encoder()
+    beat = _decoded(enc.heartbeat_encode(2, 12, 0x81, px4_modes.custom_mode("AUTO.LAND"), 4), enc)
+    first = initial_snapshot(beat, now_s=1.0)
+    assert (first.autopilot, first.mode, first.armed) == ("PX4", "AUTO.LAND", True)
+    pos = _decoded(enc.local_position_ned_encode(500, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3), enc)
+    after_pos = apply_message(first, pos, 2.0, "SYSTEM_TIME")
+    assert after_pos is not first and first.position_valid is False
+    assert after_pos.position_ned_m == (1.0, 2.0, -3.0) and after_pos.frame_time_boot_ms is None
+    marker = _decoded(enc.system_time_encode(0, 600), enc)
+    framed = apply_message(after_pos, marker, 3.0, "SYSTEM_TIME")
+    assert (framed.frame_time_boot_ms, framed.time_boot_ms, framed.received_s) == (600, 600, 3.0)
+    assert apply_message(first, pos, 2.0, "LOCAL_POSITION_NED").frame_time_boot_ms == 500
+    landed = _decoded(enc.extended_sys_state_encode(0, 4), enc)
+    assert apply_message(first, landed, 2.0, "SYSTEM_TIME").landed_state == "LANDING"
+
+
+def test_heartbeats_of_cameras_and_ground_stations_do_not_change_the_vehicle_state() -> None:
+    from companion.link.telemetry import apply_message, initial_snapshot, is_vehicle_heartbeat
+
+    enc = _encoder()
+    beat = _decoded(enc.heartbeat_encode(2, 12, 0, px4_modes.custom_mode("POSCTL"), 4), enc)
+    snapshot = initial_snapshot(beat, 0.0)
+    camera_enc = _encoder(1, 100)
+    camera = _decoded(camera_enc.heartbeat_encode(30, 8, 0, 0, 4), camera_enc)
+    gcs = _decoded(enc.heartbeat_encode(6, 8, 0, 0, 4), enc)
+    assert is_vehicle_heartbeat(beat) and not is_vehicle_heartbeat(camera)
+    assert not is_vehicle_heartbeat(gcs)
+    assert apply_message(snapshot, camera, 1.0, "SYSTEM_TIME").mode == "POSCTL"
+
+
+def test_manual_control_message_checks_itself() -> None:
+    from companion.link.manual_control import ManualControlMessage
+
+    with pytest.raises(ValueError, match="outside"):
+        ManualControlMessage(0, 0, 1200, 0, 0, 1, 255, 190, 0.0)
+    unused = ManualControlMessage(0, 0, 32767, 0, 1 << 31, 1, 255, 190, 0.0)
+    assert unused.axis("z") is None and unused.pressed(31)
+    assert unused.fields()["buttons2"] == 1 << 15

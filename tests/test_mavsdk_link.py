@@ -114,3 +114,23 @@ def test_link_loss_and_resume(fake, link) -> None:
     link.send_velocity_body(VelocitySetpoint.zero())
     stats = link.stats()
     assert stats.link_losses >= 1 and stats.reconnections >= 1
+
+
+def test_mavsdk_names_become_px4_and_mavlink_names() -> None:
+    from mavsdk.plugins.telemetry import FlightMode, LandedState
+
+    from companion.errors import LinkTimeout
+    from companion.link.mavsdk_convert import (
+        fold_flight_mode,
+        fold_landed_state,
+        initial_snapshot,
+        translate_result,
+    )
+
+    snapshot = initial_snapshot(1, "PX4", 0.0)
+    assert fold_flight_mode(snapshot, FlightMode.HOLD).mode == "AUTO.LOITER"
+    assert fold_flight_mode(snapshot, FlightMode.OFFBOARD).mode == "OFFBOARD"
+    assert fold_landed_state(snapshot, LandedState.TAKING_OFF).landed_state == "TAKEOFF"
+    assert translate_result("arm", "COMMAND_DENIED").result == "DENIED"
+    assert isinstance(translate_result("arm", "TIMEOUT"), LinkTimeout)
+    assert isinstance(translate_result("arm", "NO_SYSTEM"), LinkLost)
