@@ -45,7 +45,7 @@ def fly(sim_s: float, cfg: SitlConfig) -> tuple[float, int]:
     fc = FlightController(cfg.autopilot, dyn.dt_s)
     state = dyn.reset((0.0, 0.0, -8.0), time_s=0.0)
     plan = flight_plan(seconds_each=5.0)
-    schedule = []
+    schedule: list[Setpoint] = []
     while len(schedule) * dyn.dt_s < sim_s:
         for sp, seconds in plan:
             schedule.extend([sp] * round(seconds / dyn.dt_s))

@@ -144,7 +144,15 @@ class Dynamics:
         self._state = self.reset((0.0, 0.0, 0.0), time_s=0.0)
 
     def _bind_properties(self) -> None:
-        node = self._fdm.get_property_manager().get_node
+        """Bound accessors of the few JSBSim properties a step needs (a lookup by name costs)."""
+        manager = self._fdm.get_property_manager()
+
+        def node(name: str) -> jsbsim.FGPropertyNode:
+            found = manager.get_node(name)
+            if found is None:
+                raise SimulatorError(f"JSBSim has no property {name}; use jsbsim 1.3.x")
+            return found
+
         self._set_throttle = tuple(
             node(f"fcs/throttle-cmd-norm[{i}]").set_double_value for i in range(4)
         )
