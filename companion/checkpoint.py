@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -76,7 +76,7 @@ def save_checkpoint(
     arrays |= {"obs_mean": snap.normalisation.mean, "obs_std": snap.normalisation.std}
     arrays["metadata"] = np.frombuffer(json.dumps(meta, indent=1).encode(), dtype=np.uint8)
     buf = io.BytesIO()
-    np.savez(buf, **arrays)
+    np.savez(buf, allow_pickle=False, **cast(dict[str, Any], arrays))
     return _write_atomically(Path(path), buf.getvalue())
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import torch
@@ -61,6 +62,9 @@ class Normalisation:
 class PolicyNet(nn.Module):
     """obs -> ReLU hidden layers -> tanh; weights ~ N(0, init_std), biases 0."""
 
+    obs_mean: torch.Tensor
+    obs_std: torch.Tensor
+
     def __init__(
         self,
         obs_dim: int = OBS_DIM,
@@ -79,7 +83,7 @@ class PolicyNet(nn.Module):
             torch.nn.utils.skip_init(nn.Linear, a, b) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
         )
         with torch.no_grad():
-            for layer in self.layers:
+            for layer in self.linears:
                 layer.weight.normal_(0.0, init_std, generator=generator)
                 layer.bias.zero_()
         self._norm = norm
@@ -87,18 +91,23 @@ class PolicyNet(nn.Module):
         self.register_buffer("obs_std", torch.from_numpy(norm.std.copy()))
 
     @property
+    def linears(self) -> list[nn.Linear]:
+        return [cast(nn.Linear, layer) for layer in self.layers]
+
+    @property
     def obs_dim(self) -> int:
-        return int(self.layers[0].in_features)
+        return self.linears[0].in_features
 
     @property
     def hidden(self) -> tuple[int, ...]:
-        return tuple(int(layer.out_features) for layer in self.layers[:-1])
+        return tuple(layer.out_features for layer in self.linears[:-1])
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         h = (obs - self.obs_mean) / self.obs_std
-        for layer in self.layers[:-1]:
+        *hidden, last = self.linears
+        for layer in hidden:
             h = torch.relu(layer(h))
-        return torch.tanh(self.layers[-1](h))
+        return torch.tanh(last(h))
 
     def normalisation(self) -> Normalisation:
         """The fixed input scaling (set at construction, never trained)."""
@@ -107,8 +116,8 @@ class PolicyNet(nn.Module):
     def snapshot(self, version: int = 0, dataset_size_trained: int = 0) -> PolicySnapshot:
         """A frozen NumPy copy of the current weights (about 30 us: cheap to publish often)."""
         with torch.no_grad():
-            weights = tuple(layer.weight.detach().numpy() for layer in self.layers)
-            biases = tuple(layer.bias.detach().numpy() for layer in self.layers)
+            weights = tuple(layer.weight.detach().numpy() for layer in self.linears)
+            biases = tuple(layer.bias.detach().numpy() for layer in self.linears)
             return PolicySnapshot(weights, biases, self.normalisation(), version, dataset_size_trained)
 
     @classmethod
@@ -116,7 +125,7 @@ class PolicyNet(nn.Module):
         """A trainable network holding exactly the snapshot's weights (resume from a checkpoint)."""
         net = cls(snapshot.obs_dim, snapshot.hidden, normalisation=snapshot.normalisation)
         with torch.no_grad():
-            for layer, w, b in zip(net.layers, snapshot.weights, snapshot.biases, strict=True):
+            for layer, w, b in zip(net.linears, snapshot.weights, snapshot.biases, strict=True):
                 layer.weight.copy_(torch.from_numpy(w.copy()))
                 layer.bias.copy_(torch.from_numpy(b.copy()))
         return net

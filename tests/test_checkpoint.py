@@ -24,7 +24,7 @@ def _snapshot(rng: np.random.Generator, obs_dim: int = 15) -> PolicySnapshot:
     return net.snapshot(version=321, dataset_size_trained=77)
 
 
-def _save(path: Path, snap: PolicySnapshot, **kw) -> Path:
+def _save(path: Path, snap: PolicySnapshot | PolicyNet, **kw) -> Path:
     names = kw.pop("obs_names", OBS_NAMES)
     return save_checkpoint(path, snap, LearnerConfig(seed=5), dataset_size=80, episode=3,
                            condition="CoL", obs_names=names, extra={"pilot": "steady"}, **kw)

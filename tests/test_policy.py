@@ -20,10 +20,10 @@ def test_paper_shape_and_normal_init() -> None:
     net = _net(init_std=0.1)
     assert net.obs_dim == OBS_DIM == 15
     assert net.hidden == (130, 72, 40)
-    assert net.layers[-1].out_features == ACT_DIM == 4
-    w = net.layers[1].weight.detach().numpy()
+    assert net.linears[-1].out_features == ACT_DIM == 4
+    w = net.linears[1].weight.detach().numpy()
     assert abs(float(w.std()) - 0.1) < 0.005 and abs(float(w.mean())) < 0.005
-    assert all(float(layer.bias.detach().abs().sum()) == 0.0 for layer in net.layers)
+    assert all(float(layer.bias.detach().abs().sum()) == 0.0 for layer in net.linears)
 
 
 def test_same_seed_same_weights_other_seed_differs() -> None:
