@@ -207,3 +207,14 @@ def test_max_surface_height_skips_lookups_high_up() -> None:
     calls.clear()
     fly(d, HOVER, 0.5)
     assert len(calls) == round(0.5 / d.dt_s)
+
+
+def test_a_roof_driving_under_a_hovering_vehicle_becomes_its_floor() -> None:
+    world = World(WorldConfig(vehicle_velocity_ne_m_s=(2.0, 0.0)))
+    d = Dynamics(surface_height_m=world.surface_height_m)
+    d.reset((3.0, 0.0, -1.7), time_s=0.0)
+    s = fly(d, HOVER, 1.0)  # the roof (north edge at 2 + 2 t) passes under the vehicle
+    assert world.over_roof(s.position_ned_m[0], s.position_ned_m[1], s.time_s)
+    s = fly(d, OFF, 0.6)
+    assert s.on_ground
+    assert s.position_ned_m[2] == pytest.approx(-world.roof_height_m, abs=0.05)
