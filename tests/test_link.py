@@ -484,3 +484,30 @@ def test_manual_control_message_checks_itself() -> None:
     unused = ManualControlMessage(0, 0, 32767, 0, 1 << 31, 1, 255, 190, 0.0)
     assert unused.axis("z") is None and unused.pressed(31)
     assert unused.fields()["buttons2"] == 1 << 15
+
+
+# ------------------------------------------------------------------ against the real SITL
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(
+    ("kind", "clock"),
+    [("pymavlink", "realtime"), ("pymavlink", "lockstep"), ("mavsdk", "realtime")],
+)
+def test_link_contract_against_the_sitl(kind: str, clock: str) -> None:
+    import subprocess
+    import sys
+
+    port = free_udp_port()
+    command = [sys.executable, "-m", "sitl", "--udp", f"0:{port}", "--tcp", "-1", "--no-camera",
+               "--control-port", "0", "--clock", clock, "--duration", "120"]  # fmt: skip
+    sitl = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert sitl.stdout is not None and sitl.stdout.readline().startswith("READY")
+        cfg = LinkConfig(connection=f"udpin:127.0.0.1:{port}")
+        with open_link(cfg, kind=kind) as link:  # type: ignore[arg-type]
+            link.connect(timeout_s=10.0)
+            assert "arm_disarm" in run_link_contract(link)
+    finally:
+        sitl.terminate()
+        sitl.wait(timeout=10)
