@@ -62,11 +62,14 @@ def manual_control_from_fields(
 ) -> ManualControlMessage | None:
     """The checked message from its field values, or None if an axis is out of range."""
     try:
-        axes = [int(fields[name]) for name in AXES]
+        x, y, z, r = (int(fields[name]) for name in AXES)
         buttons = int(fields.get("buttons", 0)) & 0xFFFF
         buttons |= (int(fields.get("buttons2", 0) or 0) & 0xFFFF) << 16
         return ManualControlMessage(
-            *axes,
+            x=x,
+            y=y,
+            z=z,
+            r=r,
             buttons=buttons,
             target_system=int(fields.get("target", 0)),
             source_system=source_system,

@@ -127,7 +127,8 @@ class FakeAutopilot:
         alt_m = self.state.params.get("MIS_TAKEOFF_ALT", 2.5)
         self.state.mode = "AUTO.TAKEOFF"
         self.state.landed_state = "TAKEOFF"
-        self.state.position_target = (*self.state.position_ned_m[:2], -alt_m, self.state.yaw_rad)
+        north, east, _ = self.state.position_ned_m
+        self.state.position_target = (north, east, -alt_m, self.state.yaw_rad)
         return mavlink.MAV_RESULT_ACCEPTED, []
 
     def _land(self, p: list[float]) -> tuple[int, list[Any]]:

@@ -82,11 +82,10 @@ def check_frames(link: VehicleLink, count: int = 3, timeout_s: float = 2.0) -> N
         frame = link.wait_frame(last, timeout_s)
         _require(frame is not None, f"wait_frame({last}) returned no frame within {timeout_s} s")
         assert frame is not None
-        _require(
-            frame.frame_time_boot_ms is not None and frame.frame_time_boot_ms > last,
-            f"frame {frame.frame_time_boot_ms} is not newer than {last}",
-        )
-        last = frame.frame_time_boot_ms
+        stamp = frame.frame_time_boot_ms
+        _require(stamp is not None and stamp > last, f"frame {stamp} is not newer than {last}")
+        assert stamp is not None
+        last = stamp
     _require(link.wait_frame(2**32, 0.05) is None, "wait_frame for a future frame did not time out")
 
 
