@@ -30,7 +30,7 @@ class LinkConfig(Section):
     baud: int = Field(57600, gt=0, description="serial devices without a ',BAUD' suffix")
     heartbeat_period_s: float = Field(1.0, gt=0, description="our own HEARTBEAT (onboard controller)")
     telemetry_rate_hz: float = Field(50.0, ge=0, description="ATTITUDE, LOCAL_POSITION_NED; 0 = leave as is")
-    status_rate_hz: float = Field(2.0, ge=0, description="EXTENDED_SYS_STATE; 0 = leave as is")
+    status_rate_hz: float = Field(10.0, ge=0, description="EXTENDED_SYS_STATE (touchdown detection); 0 = leave as is")
     request_rates_on_connect: bool = True
     frame_marker: Literal["SYSTEM_TIME", "LOCAL_POSITION_NED", "ATTITUDE"] = Field(
         "SYSTEM_TIME", description="message whose arrival ends a frame (SITL lockstep: SYSTEM_TIME)"
@@ -58,6 +58,14 @@ class SessionConfig(Section):
     max_steps: int = Field(500, gt=0)
     episodes: int = Field(4, gt=0)
     output_dir: str = "runs"
+    seed: int = Field(0, ge=0, description="episode i starts from seed + i")
+    link_patience_s: float = Field(10.0, gt=0, description="link lost this long -> give the episode up")
+    # Episode starts on a vehicle without a simulator (fly there, then hand over).
+    pad_ned_m: tuple[float, float, float] = Field((0.0, 0.0, -1.5), description="where the pad is, local NED")
+    start_height_above_pad_m: float = Field(8.0, gt=0)
+    start_xy_range_m: float = Field(3.0, ge=0)
+    start_tolerance_m: float = Field(0.3, gt=0, description="at the start point within this -> hand over")
+    takeoff_alt_m: float = Field(2.5, gt=0)
 
 
 class SafetyConfig(Section):
@@ -160,6 +168,9 @@ class PilotConfig(Section):
         6.0, ge=0, description="no progress down for this long -> take over; 0 disables"
     )
     takeover_stall_descent_m: float = Field(0.5, gt=0, description="what counts as progress")
+    release_descent_m: float = Field(
+        0.5, ge=0, description="descended this much since taking over before letting go"
+    )
     release_edge_fraction: float = Field(0.5, gt=0, le=1)
     release_off_centre_m: float = Field(0.3, gt=0)
     release_hold_s: float = Field(1.0, ge=0, description="back on track this long -> let go")

@@ -24,7 +24,7 @@ class ClockConfig(Section):
     fdm_rate_hz: float = Field(126.0, ge=60, le=1000, description="JSBSim step rate")
     frame_rate_hz: float = Field(10.5, gt=0, le=100, description="agent/camera frame rate")
     lockstep_timeout_s: float = Field(
-        0.25, gt=0, le=10, description="lockstep: wall time to wait for an answer before advancing"
+        1.0, gt=0, le=10, description="lockstep: wall time to wait for an answer before advancing"
     )
 
 

@@ -50,7 +50,7 @@ class SimVehicle:
     def __init__(self, cfg: SitlConfig) -> None:
         self.cfg = cfg
         self.world = World(cfg.world)
-        self.dynamics = Dynamics(cfg.clock.fdm_rate_hz, self.world.surface_height_m)
+        self.dynamics = Dynamics(cfg.clock.fdm_rate_hz, self.world.surface_height_m, max_surface_height_m=self.world.roof_height_m)
         self.controller = FlightController(cfg.autopilot, self.dynamics.dt_s)
         self.params = ParamStore(autopilot_params(cfg.autopilot))
         self.rng = np.random.default_rng(cfg.world.seed)

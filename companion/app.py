@@ -1,0 +1,248 @@
+"""Wiring: config + options -> link, camera, pilot, learner, dataset -> episodes -> run folder.
+
+Used by the ``col`` commands and the experiment harness. A run folder holds ``human.csv``
+(the human dataset), ``checkpoints/episode_NNN.npz`` (one per episode), ``episodes.jsonl``
+(one record per episode), ``session.tlog`` (MAVLink telemetry log) and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import socket
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from companion.arbiter import Phase
+from companion.camera import CameraSource, open_camera
+from companion.checkpoint import load_checkpoint, save_checkpoint
+from companion.commands import CommandMapper
+from companion.config import CompanionConfig
+from companion.dataset import HumanDataset
+from companion.errors import ColError, ConfigError
+from companion.inputs.base import HumanCommand, HumanInput
+from companion.learner import Learner, make_runner
+from companion.link import open_link
+from companion.link.base import VehicleLink
+from companion.observation import Observation
+from companion.observer import Observer
+from companion.perception import PadDetector
+from companion.policy import PolicySnapshot
+from companion.safety import Geofence, SetpointLimiter
+from companion.session import EpisodeParts, EpisodeRecord, EpisodeRunner
+from companion.simulator import SimulatorClient, SitlProcess, start_sitl
+
+log = logging.getLogger(__name__)
+Condition = Literal["demo", "int", "col", "eval"]
+PilotKind = Literal["expert", "manual", "gamepad", "none"]
+CONDITIONS = ("demo", "int", "col", "eval")
+
+
+def phases_for(condition: str, episodes: int) -> list[Phase]:
+    """The paper's schedules: Demo, Int, CoL (first half demonstrations), or evaluation."""
+    if condition == "demo":
+        return [Phase.DEMONSTRATION] * episodes
+    if condition == "int":
+        return [Phase.INTERVENTION] * episodes
+    if condition == "col":
+        half = episodes // 2
+        return [Phase.DEMONSTRATION] * half + [Phase.INTERVENTION] * (episodes - half)
+    if condition == "eval":
+        return [Phase.AUTONOMOUS] * episodes
+    raise ConfigError(f"unknown condition {condition!r}; use one of {', '.join(CONDITIONS)}")
+
+
+class NoHuman(HumanInput):
+    """Nobody at the sticks: neutral, never overriding (evaluation runs)."""
+
+    def read(self, obs: Observation) -> HumanCommand:
+        return HumanCommand.neutral()
+
+
+def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink) -> HumanInput:
+    """The person (or their stand-in) behind the override trigger."""
+    if kind == "expert":
+        from companion.inputs.expert import InterveningExpert
+
+        return InterveningExpert(cfg.pilot)
+    if kind == "manual":
+        from companion.inputs.manual_control import ManualControlInput
+
+        source = ManualControlInput(cfg.pilot)
+        link.on_manual_control(source.feed)
+        return source
+    if kind == "gamepad":
+        from companion.inputs.gamepad import GamepadInput
+
+        return GamepadInput(cfg.pilot)
+    if kind == "none":
+        return NoHuman()
+    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad or none")
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class RunOptions:
+    """What a person chooses on the command line (the rest comes from the config)."""
+
+    connection: str | None = None
+    pilot: str = "expert"
+    condition: str = "col"
+    episodes: int | None = None
+    checkpoint: Path | None = None
+    run_dir: Path | None = None
+    config_path: Path | None = None
+    seed: int | None = None
+    lockstep: bool | None = None  # None: lockstep when the SITL is ours and the pilot synthetic
+    learn: bool = True
+    record: bool = True
+    first_episode: int = 0  # continuing a run folder: number episodes on from here
+
+
+@dataclass
+class RunResult:
+    run_dir: Path
+    records: list[EpisodeRecord] = field(default_factory=list)
+    final_snapshot: PolicySnapshot | None = None
+    dataset_size: int = 0
+    latencies_s: list[float] = field(default_factory=list)
+    learner_error: str | None = None
+
+    @property
+    def successes(self) -> int:
+        return sum(1 for r in self.records if r.success)
+
+    def summary(self) -> dict[str, object]:
+        n = len(self.records)
+        return {
+            "episodes": n,
+            "successes": self.successes,
+            "success_rate": round(self.successes / n, 4) if n else 0.0,
+            "human_samples": sum(r.human_samples for r in self.records),
+            "interventions": sum(r.interventions for r in self.records),
+            "dataset_size": self.dataset_size,
+            "policy_version": None if self.final_snapshot is None else self.final_snapshot.version,
+            "run_dir": str(self.run_dir),
+            "learner_error": self.learner_error,
+        }
+
+
+def default_run_dir(cfg: CompanionConfig, label: str) -> Path:
+    return Path(cfg.session.output_dir) / f"{time.strftime('%Y%m%d-%H%M%S')}-{label}"
+
+
+@contextlib.contextmanager
+def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -> Iterator[tuple[str, SitlProcess | None]]:
+    """The connection string to use, starting our own SITL when none is given."""
+    if opts.connection:
+        yield opts.connection, None
+        return
+    port = free_udp_port()
+    sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
+                      seed=opts.seed)
+    try:
+        yield f"udpin:127.0.0.1:{port}", sitl
+    finally:
+        sitl.stop()
+
+
+def _open_camera(cfg: CompanionConfig, sitl: SitlProcess | None) -> CameraSource | None:
+    auto_uri = sitl.ports.get("camera_uri") if sitl is not None else None
+    try:
+        return open_camera(cfg.perception.camera, auto_uri=auto_uri, open_timeout_s=cfg.perception.open_timeout_s)
+    except ColError:
+        if sitl is None:
+            raise
+        log.warning("the SITL's camera is unavailable; flying with the pad reported as not visible")
+        return None
+
+
+def run_episodes(cfg: CompanionConfig, opts: RunOptions,
+                 on_episode: Callable[[EpisodeRecord], None] | None = None) -> RunResult:
+    """Connect (or start the SITL), then fly ``episodes`` episodes of ``opts.condition``."""
+    episodes = opts.episodes or cfg.session.episodes
+    phases = phases_for(opts.condition, episodes)
+    synthetic = opts.pilot in ("expert", "none")
+    lockstep = opts.lockstep if opts.lockstep is not None else (synthetic and not opts.connection)
+    run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "checkpoints").mkdir(exist_ok=True)
+    result = RunResult(run_dir)
+    initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None
+    with contextlib.ExitStack() as stack:
+        connection, sitl = stack.enter_context(vehicle_connection(cfg, opts, lockstep))
+        link_cfg = cfg.link.model_copy(update={"connection": connection})
+        link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
+        stack.callback(link.close)
+        link.connect(timeout_s=30.0)
+        simulator = SimulatorClient("127.0.0.1", sitl.control_port) if sitl is not None else None
+        if simulator is not None:
+            stack.callback(simulator.close)
+        camera = _open_camera(cfg, sitl)
+        if camera is not None:
+            stack.callback(camera.close)
+        dataset = HumanDataset(run_dir / "human.csv" if opts.record else None)
+        stack.callback(dataset.close)
+        learner = Learner(cfg.learner, dataset, initial=initial)
+        runner = make_runner(learner) if opts.learn else None
+        if runner is not None:
+            runner.start()
+            stack.callback(runner.stop)
+        human = build_human(opts.pilot, cfg, link)
+        stack.callback(human.close)
+        parts = EpisodeParts(
+            link=link,
+            observer=Observer(camera, PadDetector(cfg.perception), (320, 240), cfg.perception.frame_timeout_s),
+            mapper=CommandMapper(cfg.commands), human=human,
+            fence=Geofence.from_config(cfg.safety), limiter=SetpointLimiter(cfg.commands, cfg.safety),
+            cfg=cfg.session, lockstep=lockstep, simulator=simulator,
+            runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
+        )
+        episode_runner = EpisodeRunner(parts)
+        seed0 = cfg.session.seed if opts.seed is None else opts.seed
+        with (run_dir / "episodes.jsonl").open("a") as log_file:
+            for k, phase in enumerate(phases):
+                i = opts.first_episode + k
+                record = episode_runner.run(i, phase, seed0 + k)
+                log_file.write(json.dumps(record.to_json_dict()) + "\n")
+                log_file.flush()
+                dataset.sync()
+                snap = learner.latest_snapshot
+                save_checkpoint(run_dir / "checkpoints" / f"episode_{i:03d}.npz", snap, cfg.learner,
+                                dataset_size=len(dataset), episode=i, condition=opts.condition,
+                                extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
+                result.records.append(record)
+                if on_episode is not None:
+                    on_episode(record)
+        if runner is not None:
+            runner.stop()
+            result.learner_error = None if runner.error is None else repr(runner.error)
+        result.final_snapshot = learner.latest_snapshot
+        result.dataset_size = len(dataset)
+        result.latencies_s = episode_runner.step_latencies_s
+    (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
+    return result
+
+
+class _Frozen:
+    """A runner that never trains: flies one fixed snapshot (evaluation)."""
+
+    def __init__(self, snapshot: PolicySnapshot) -> None:
+        self._snapshot = snapshot
+        self.error = None
+
+    @property
+    def latest_snapshot(self) -> PolicySnapshot:
+        return self._snapshot
+
+    def on_control_step(self) -> PolicySnapshot:
+        return self._snapshot

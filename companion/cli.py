@@ -1,0 +1,195 @@
+"""``col``: fly, learn and evaluate. Without --connect, each command starts the SITL for you."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import statistics
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from tqdm import tqdm
+
+from companion.errors import ColError
+
+app = typer.Typer(add_completion=False, help=__doc__, no_args_is_help=True)
+
+ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="TOML config ([companion] and [sitl] tables); default: the paper's setting")]
+ConnectOpt = Annotated[str | None, typer.Option("--connect", help="MAVLink connection (udpin:0.0.0.0:14540, tcp:host:port, /dev/ttyACM0,57600); default: start the SITL")]
+SeedOpt = Annotated[int | None, typer.Option(help="seed of the first episode (episode i uses seed + i)")]
+RunDirOpt = Annotated[Path | None, typer.Option("--run-dir", help="where to write dataset, checkpoints, logs (default: runs/<time>-<condition>)")]
+VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="log what happens")]
+
+
+def _setup(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def _load(config: Path | None):  # type: ignore[no-untyped-def]
+    from companion.config import load_companion_config
+
+    return load_companion_config(config)
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate (sound for small n and rates near 0 or 1)."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _progress(total: int, label: str):  # type: ignore[no-untyped-def]
+    bar = tqdm(total=total, desc=label, unit="ep", leave=False, disable=None)
+
+    def on_episode(record) -> None:  # type: ignore[no-untyped-def]
+        bar.update(1)
+        bar.set_postfix(outcome=record.outcome, success=record.success, samples=record.dataset_size)
+
+    return bar, on_episode
+
+
+def _run(cfg, opts, label: str):  # type: ignore[no-untyped-def]
+    from companion.app import run_episodes
+
+    bar, on_episode = _progress(opts.episodes or cfg.session.episodes, label)
+    try:
+        return run_episodes(cfg, opts, on_episode)
+    finally:
+        bar.close()
+
+
+def _fail(exc: Exception) -> typer.Exit:
+    typer.echo(f"error: {exc}", err=True)
+    return typer.Exit(2)
+
+
+@app.command()
+def fly(
+    connect: ConnectOpt = None,
+    pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none")] = "expert",
+    checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
+    episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
+    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), eval (policy alone)")] = "demo",
+    config: ConfigOpt = None,
+    seed: SeedOpt = None,
+    run_dir: RunDirOpt = None,
+    learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
+    verbose: VerboseOpt = False,
+) -> None:
+    """Fly episodes: the person (or scripted expert) demonstrates or intervenes; the policy learns."""
+    _setup(verbose)
+    from companion.app import RunOptions
+
+    try:
+        cfg = _load(config)
+        opts = RunOptions(connection=connect, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,
+                          run_dir=run_dir, config_path=config, seed=seed, learn=learn)
+        result = _run(cfg, opts, f"fly {condition}")
+    except ColError as exc:
+        raise _fail(exc) from None
+    for r in result.records:
+        typer.echo(f"episode {r.episode:3d} {r.phase:13s} {r.outcome:9s} success={r.success} "
+                   f"steps={r.steps} human_samples={r.human_samples} interventions={r.interventions}"
+                   + (f" touchdown {r.touchdown_distance_m:.2f} m" if r.touchdown_distance_m is not None else ""))
+    typer.echo(f"dataset: {result.run_dir / 'human.csv'} ({result.dataset_size} samples); checkpoints: {result.run_dir / 'checkpoints'}")
+    typer.echo(json.dumps(result.summary()))
+
+
+def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | None, config: Path | None) -> dict:  # type: ignore[no-untyped-def]
+    """Fly ``checkpoint`` alone on seeded starts; success rate with a 95 % interval."""
+    from companion.app import RunOptions
+
+    opts = RunOptions(pilot="none", condition="eval", episodes=episodes, checkpoint=checkpoint, run_dir=run_dir,
+                      config_path=config, seed=seed, learn=False, record=False, lockstep=True)
+    result = _run(cfg, opts, "eval")
+    n, k = len(result.records), result.successes
+    lo, hi = wilson_interval(k, n)
+    distances = [r.touchdown_distance_m for r in result.records if r.touchdown_distance_m is not None]
+    return {
+        "episodes": n,
+        "successes": k,
+        "success_rate": round(k / n, 4) if n else 0.0,
+        "ci95": [round(lo, 4), round(hi, 4)],
+        "touchdown_distance_m_median": round(statistics.median(distances), 3) if distances else None,
+        "touchdowns": len(distances),
+        "timeouts": sum(r.outcome == "timeout" for r in result.records),
+        "run_dir": str(result.run_dir),
+    }
+
+
+@app.command("eval")
+def eval_cmd(
+    checkpoint: Annotated[Path, typer.Argument(help="a checkpoint written by col fly / col demo")],
+    episodes: Annotated[int, typer.Option(min=1, help="evaluation episodes")] = 20,
+    config: ConfigOpt = None,
+    seed: Annotated[int, typer.Option(help="seed of the first start (held-out starts use a different range than training)")] = 100_000,
+    run_dir: RunDirOpt = None,
+    verbose: VerboseOpt = False,
+) -> None:
+    """Fly a policy alone in the SITL (lockstep) and report its success rate."""
+    _setup(verbose)
+    try:
+        cfg = _load(config)
+        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config)
+    except ColError as exc:
+        raise _fail(exc) from None
+    typer.echo(f"success {report['successes']}/{report['episodes']} = {report['success_rate']:.0%} "
+               f"(95% CI {report['ci95'][0]:.0%}-{report['ci95'][1]:.0%}); median touchdown distance "
+               f"{report['touchdown_distance_m_median']} m")
+    typer.echo(json.dumps(report))
+
+
+@app.command()
+def demo(
+    demonstrations: Annotated[int, typer.Option(min=1, help="episodes the scripted expert flies")] = 3,
+    interventions: Annotated[int, typer.Option(min=0, help="episodes the policy flies with the expert intervening")] = 3,
+    eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="episodes the final policy flies alone")] = 10,
+    config: ConfigOpt = None,
+    run_dir: RunDirOpt = None,
+    verbose: VerboseOpt = False,
+) -> None:
+    """A short Cycle-of-Learning session in the SITL: demonstrate, intervene, evaluate."""
+    _setup(verbose)
+    from companion.app import RunOptions, default_run_dir, run_episodes
+
+    try:
+        cfg = _load(config)
+        root = run_dir or default_run_dir(cfg, "demo")
+        typer.echo(f"Cycle-of-Learning demo in {root}: {demonstrations} demonstrations, {interventions} "
+                   f"interventions, then {eval_episodes} evaluation episodes of the policy alone.")
+        demo_opts = RunOptions(pilot="expert", condition="demo", episodes=demonstrations, run_dir=root / "train", config_path=config)
+        trained = run_episodes(cfg, demo_opts)
+        last = trained.run_dir / "checkpoints" / f"episode_{demonstrations - 1:03d}.npz"
+        if interventions:
+            int_opts = RunOptions(pilot="expert", condition="int", episodes=interventions, run_dir=root / "train",
+                                  checkpoint=last, config_path=config, seed=cfg.session.seed + demonstrations,
+                                  first_episode=demonstrations)
+            more = run_episodes(cfg, int_opts)
+            trained.records += more.records
+            trained.dataset_size = more.dataset_size
+            last = more.run_dir / "checkpoints" / f"episode_{demonstrations + interventions - 1:03d}.npz"
+        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config)
+    except ColError as exc:
+        raise _fail(exc) from None
+    for r in trained.records:
+        typer.echo(f"  train episode {r.episode} {r.phase:13s} {r.outcome:9s} success={r.success} human_samples={r.human_samples} interventions={r.interventions}")
+    typer.echo(f"learned from {trained.dataset_size} human samples "
+               f"({sum(r.interventions for r in trained.records)} interventions)")
+    typer.echo(f"final policy alone: {report['successes']}/{report['episodes']} landings on the pad "
+               f"(95% CI {report['ci95'][0]:.0%}-{report['ci95'][1]:.0%})")
+    typer.echo(f"dataset: {root / 'train' / 'human.csv'}\ncheckpoints: {root / 'train' / 'checkpoints'}\nfinal policy: {last}")
+    typer.echo(json.dumps({"human_samples": trained.dataset_size, "train_episodes": len(trained.records),
+                           "eval_episodes": report["episodes"], "eval_successes": report["successes"],
+                           "success_rate": report["success_rate"], "final_checkpoint": str(last)}))
+
+
+if __name__ == "__main__":
+    app()
