@@ -107,8 +107,11 @@ class VehicleLink(ABC):
     """
 
     @abstractmethod
-    def connect(self, timeout_s: float = 10.0) -> VehicleSnapshot:
-        """Start I/O and wait for the vehicle's heartbeat; LinkTimeout if none comes."""
+    def connect(self, timeout_s: float | None = None) -> VehicleSnapshot:
+        """Start I/O and wait for the vehicle's heartbeat; LinkTimeout if none comes.
+
+        ``timeout_s`` defaults to ``heartbeat_timeout_s`` of the link's config.
+        """
 
     @abstractmethod
     def close(self) -> None:

@@ -67,7 +67,8 @@ class MavlinkLink(VehicleLink):
         self._command_lock = threading.Lock()
 
     # ================================================================ lifecycle and state
-    def connect(self, timeout_s: float = 10.0) -> VehicleSnapshot:
+    def connect(self, timeout_s: float | None = None) -> VehicleSnapshot:
+        timeout_s = self.cfg.heartbeat_timeout_s if timeout_s is None else timeout_s
         self._io.start()
         snapshot = self._io.wait(lambda s: s is not None, timeout_s)
         if snapshot is None:

@@ -78,7 +78,8 @@ class MavsdkLink(VehicleLink):
         self._closed = False
 
     # ================================================================ lifecycle
-    def connect(self, timeout_s: float = 10.0) -> VehicleSnapshot:
+    def connect(self, timeout_s: float | None = None) -> VehicleSnapshot:
+        timeout_s = self.cfg.heartbeat_timeout_s if timeout_s is None else timeout_s
         if self._closed:
             raise LinkLost("this link was closed; open a new one")
         if self._runner is None:
