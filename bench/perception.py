@@ -90,7 +90,7 @@ def run(frames: int, seed: int, conditions: dict) -> dict:
     renderer = CameraRenderer(CameraConfig(), World(world_cfg))
     detector = PadDetector()
     pad = renderer.world.pad_ned(0.0)
-    centre_err, radius_err, render_ms, detect_ms = [], [], [], []
+    centre_err, radius_err, render_ms, detect_ms, partial_err = [], [], [], [], []
     counts = {"full": 0, "partial": 0, "out": 0, "behind": 0, "miss": 0, "false_positive": 0, "partial_found": 0}
     for _ in range(frames):
         position, attitude = sample_pose(rng, pad, world_cfg.start_height_above_pad_m)
@@ -109,28 +109,32 @@ def run(frames: int, seed: int, conditions: dict) -> dict:
             counts["false_positive"] += 1
         elif gt["view"] == "partial" and found is not None:
             counts["partial_found"] += 1
+            partial_err.append(math.hypot(found.u_px - gt["centre"][0], found.v_px - gt["centre"][1]))
         elif gt["view"] == "full":
             if found is None:
                 counts["miss"] += 1
                 continue
             centre_err.append(math.hypot(found.u_px - gt["centre"][0], found.v_px - gt["centre"][1]))
             radius_err.append(abs(found.radius_px - gt["radius"]) / gt["radius"])
-    return summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, {"seed": seed, **conditions})
+    errors = {"centre": centre_err, "radius": radius_err, "partial_centre": partial_err}
+    return summarise(counts, errors, render_ms, detect_ms, frames, {"seed": seed, **conditions})
 
 
-def summarise(counts, centre_err, radius_err, render_ms, detect_ms, frames, conditions) -> dict:
+def summarise(counts, errors, render_ms, detect_ms, frames, conditions) -> dict:
     def pct(values, q):
         return round(float(np.percentile(values, q)), 4) if values else None
 
     return {
-        "center_err_px_p50": pct(centre_err, 50),
-        "center_err_px_p95": pct(centre_err, 95),
-        "radius_err_rel_p95": pct(radius_err, 95),
+        "center_err_px_p50": pct(errors["centre"], 50),
+        "center_err_px_p95": pct(errors["centre"], 95),
+        "radius_err_rel_p95": pct(errors["radius"], 95),
         "false_positive_rate": round(counts["false_positive"] / max(counts["out"], 1), 4),
         "miss_rate": round(counts["miss"] / max(counts["full"], 1), 4),
         "render_ms_p50": pct(render_ms, 50),
         "detect_ms_p50": pct(detect_ms, 50),
         "partial_detected_rate": round(counts["partial_found"] / max(counts["partial"], 1), 4),
+        "partial_center_err_px_p50": pct(errors["partial_centre"], 50),
+        "partial_center_err_px_p95": pct(errors["partial_centre"], 95),
         "frames": frames, "frames_full": counts["full"], "frames_partial": counts["partial"],
         "frames_out": counts["out"], **conditions,
         "note": "times measured on a shared machine",

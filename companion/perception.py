@@ -26,6 +26,8 @@ from companion.config import PerceptionConfig
 
 _EDGE_HALF_PX = 0.5  # contour points are boundary pixel centres: the edge is half a pixel further
 _MIN_ARC_POINTS = 12
+_NOTCH_DEPTH_PX = 1.5  # deeper dents in the outline are not the rim
+_MAX_FIT_RADIUS_IMAGES = 4.0  # a fitted rim larger than this many image sizes is not the pad
 _DOT_AREA_RATIO = (0.005, 0.2)  # (dot / disc) area; the marking's is 0.04
 
 
@@ -122,15 +124,41 @@ def _partial_detection(blob, area: float, dot, width: int, height: int) -> PadDe
     """A pad cut by the border: fit a circle to the rim inside the image."""
     pts = blob[:, 0, :].astype(float)
     inside = (pts[:, 0] > 0) & (pts[:, 0] < width - 1) & (pts[:, 1] > 0) & (pts[:, 1] < height - 1)
-    fit = fit_circle(pts[inside]) if inside.sum() >= _MIN_ARC_POINTS else None
+    rim = inside & _on_convex_rim(blob)
+    fit = fit_circle(pts[rim]) if rim.sum() >= _MIN_ARC_POINTS else None
+    area_radius = math.sqrt(area / math.pi)
+    if fit is not None and not (0.9 * area_radius <= fit[2] <= _MAX_FIT_RADIUS_IMAGES * max(width, height)):
+        fit = None  # an arc too straight or too noisy to trust: the visible area is safer
     if fit is None:
         m = cv2.moments(blob)
         centre = dot or (m["m10"] / m["m00"], m["m01"] / m["m00"])
-        return PadDetection(float(centre[0]), float(centre[1]), math.sqrt(area / math.pi) + _EDGE_HALF_PX, True)
+        return PadDetection(float(centre[0]), float(centre[1]), area_radius + _EDGE_HALF_PX, True)
     cu, cv, radius = fit
     if dot is not None:
         cu, cv = dot
     return PadDetection(float(cu), float(cv), float(radius) + _EDGE_HALF_PX, True)
+
+
+def _on_convex_rim(contour: np.ndarray) -> np.ndarray:
+    """Which contour points lie on the blob's convex outline: not in a notch, such as the white
+    dot's edge when the dot is cut by the image border and so joins the outer contour."""
+    keep = np.ones(len(contour), bool)
+    if len(contour) < 4:
+        return keep
+    hull = cv2.convexHull(contour, returnPoints=False)
+    hull = np.sort(hull.reshape(-1))[:, None]  # convexityDefects wants monotonic hull indices
+    try:
+        defects = cv2.convexityDefects(contour, hull)
+    except cv2.error:  # self-intersecting digitised outlines; keep every point
+        return keep
+    for start, end, _, depth in (defects.reshape(-1, 4) if defects is not None else ()):
+        if depth / 256.0 > _NOTCH_DEPTH_PX:
+            if start < end:
+                keep[start + 1:end] = False
+            else:
+                keep[start + 1:] = False
+                keep[:end] = False
+    return keep
 
 
 def fit_circle(points: np.ndarray) -> tuple[float, float, float] | None:

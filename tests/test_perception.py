@@ -105,6 +105,15 @@ def test_partial_pad_centre_outside_the_image_comes_from_the_rim(renderer, detec
     assert abs(found.radius_px - radius) <= 0.1 * radius
 
 
+def test_dot_cut_by_the_border_does_not_bend_the_rim_fit(renderer, detector) -> None:
+    # Pad centre at u = 5 px: the dot (8 px) is cut by the border and its edge joins the outline.
+    image, centre, radius = view(renderer, 0.0, 1.93, 2.0)
+    found = detector.detect(image)
+    assert found is not None and found.partial
+    assert math.hypot(found.u_px - centre[0], found.v_px - centre[1]) <= 2.0
+    assert abs(found.radius_px - radius) <= 0.05 * radius
+
+
 @pytest.mark.parametrize(("dn", "de", "h"), [(6.0, 0.0, 3.0), (0.0, -9.0, 6.0), (-15.0, 12.0, 8.0), (30.0, 30.0, 1.0)])
 def test_no_pad_in_view_gives_none(renderer, detector, dn, de, h) -> None:
     image, _, _ = view(renderer, dn, de, h, (0.1, -0.1, 0.3))
