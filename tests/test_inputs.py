@@ -160,11 +160,15 @@ def test_expert_pad_lost_blink_then_climb_or_land() -> None:
 
 def test_expert_commits_to_touchdown_and_ignores_partial_glimpses() -> None:
     expert = ScriptedExpert(CFG)
-    expert.command(obs(pad_at(0.1, 0.0, 0.9), t_ms=0))  # centred, below commit height
+    expert.command(obs(pad_at(0.0, 0.0, 0.9), t_ms=0))  # centred, below commit height
     stray = PadDetection(W_PX - 1.0, 0.0, 14.0, True)  # a stray blob in the corner
     cmd = expert.command(obs(stray, t_ms=100))
     assert cmd == JoystickCommand(0.0, 0.0, 0.0, -CFG.descent_stick_slow)
     assert expert.command(obs(None, t_ms=1000)).throttle == -CFG.descent_stick_slow
+    # Drifted 0.5 m north-east (facing north) since: steers back to where the pad was.
+    drifted = expert.command(obs(None, t_ms=1100, position=(0.5, 0.5, -7.5)))
+    assert drifted.pitch < 0 and drifted.roll < 0
+    assert drifted.throttle == -CFG.descent_stick_slow
     whole = expert.command(obs(pad_at(0.3, 0.0, 0.8), t_ms=1100))  # a whole pad is believed
     assert whole.pitch > 0
     expert.reset()
@@ -329,13 +333,30 @@ def test_rule_lets_go_only_after_being_on_track_for_the_hold_time() -> None:
     assert rule.update(obs(pad_at(0.8, 0.0, 1.8), t_ms=0)).holding  # off-centre, low
     # Better, but not within the tighter release threshold yet: still holding.
     assert rule.update(obs(pad_at(0.45, 0.0, 1.8), t_ms=100)).holding
-    hold_ms = int(CFG.release_hold_s * 1000)
-    for t in range(200, 200 + hold_ms, 100):
+    # Centred, but not yet any lower than at the take-over: still holding.
+    for t in range(200, 3000, 100):
         assert rule.update(obs(pad_at(0.1, 0.0, 1.8), t_ms=t)).holding
-    assert not rule.update(obs(pad_at(0.1, 0.0, 1.8), t_ms=200 + hold_ms)).holding
+    lower = (0.0, 0.0, -8.0 + CFG.release_descent_m)
+    hold_ms = int(CFG.release_hold_s * 1000)
+    for t in range(3000, 3000 + hold_ms, 100):
+        assert rule.update(obs(pad_at(0.1, 0.0, 1.3), t_ms=t, position=lower)).holding
+    assert not rule.update(obs(pad_at(0.1, 0.0, 1.3), t_ms=3000 + hold_ms, position=lower)).holding
     assert rule.takeovers == 1
-    assert rule.update(obs(pad_at(0.8, 0.0, 1.8), t_ms=5000)).holding
+    assert rule.update(obs(pad_at(0.8, 0.0, 1.8), t_ms=5000, position=lower)).holding
     assert rule.takeovers == 2
+
+
+def test_rule_takes_over_when_the_descent_stalls() -> None:
+    rule = InterventionRule(CFG)
+    stall_ms = int(CFG.takeover_stall_s * 1000)
+    for t in range(0, stall_ms + 1, 500):  # hovering, pad centred: fine for a while
+        assert not rule.update(obs(pad_at(0.0, 0.0, 6.0), t_ms=t)).holding
+    state = rule.update(obs(pad_at(0.0, 0.0, 6.0), t_ms=stall_ms + 500))
+    assert state.holding and state.reason == "not descending"
+    rule.reset()
+    for i, t in enumerate(range(0, 3 * stall_ms, 500)):  # descending steadily: never
+        down = -8.0 + 0.15 * i
+        assert not rule.update(obs(pad_at(0.0, 0.0, 6.0), t_ms=t, position=(0, 0, down))).holding
 
 
 def test_rule_accepts_losing_the_pad_right_below_at_touchdown() -> None:
@@ -345,6 +366,10 @@ def test_rule_accepts_losing_the_pad_right_below_at_touchdown() -> None:
     assert not rule.update(obs(PadDetection(2.0, 3.0, 150.0, True), t_ms=200)).holding
     state = rule.update(obs(None, velocity=(0.6, 0.0, 0.3), t_ms=300))
     assert state.holding and state.reason is not None and "sliding" in state.reason
+    rule.reset()
+    rule.update(obs(pad_at(0.0, 0.0, 0.7), t_ms=0))
+    state = rule.update(obs(None, t_ms=100, position=(0.0, CFG.takeover_off_centre_m + 0.1, -7.8)))
+    assert state.holding and state.reason is not None and "drifting" in state.reason
 
 
 # --- MANUAL_CONTROL ----------------------------------------------------------------------------

@@ -42,30 +42,52 @@ def _stick(value: float, limit: float = 1.0) -> float:
 
 
 class TouchdownCommit:
-    """Whether the pilot has committed to touchdown, and which views they still trust then.
+    """Whether the pilot has committed to touchdown, and where they believe the pad is then.
 
     Close above the pad it fills the view: the detector sees only its rim or stray blobs
     (reported as partial), and the estimates jump. A person then ignores such glimpses and
-    sets the vehicle down level; a whole pad in view is still believed. Committed once the
-    pad is seen centred (within ``commit_off_centre_m``) at or below ``commit_height_m``;
-    until reset.
+    sets the vehicle down where they last saw the pad whole, judging their own drift from
+    the vehicle's motion (its local position); a whole pad in view is still believed.
+    Committed once the pad is seen centred (within ``commit_off_centre_m``) at or below
+    ``commit_height_m``; until reset.
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
         self.height_m = cfg.commit_height_m
         self.off_centre_m = cfg.commit_off_centre_m
-        self.committed = False
+        self.reset()
 
     def reset(self) -> None:
         self.committed = False
+        self._pad_ne_m = np.zeros(2)
 
-    def update(self, view: PadEstimate | None) -> PadEstimate | None:
+    def update(self, view: PadEstimate | None, obs: Observation) -> PadEstimate | None:
         """The view to act on: None for a partial pad once committed."""
-        if view is not None and view.height_m <= self.height_m:
-            self.committed = self.committed or view.offset_m <= self.off_centre_m
-        if self.committed and view is not None and view.partial:
+        if view is None:
             return None
+        if not self.committed:
+            if view.height_m <= self.height_m and view.offset_m <= self.off_centre_m:
+                self.committed = True
+                self._pad_ne_m = self._pad_position(view, obs)
+            return view
+        if view.partial:
+            return None
+        self._pad_ne_m = self._pad_position(view, obs)
         return view
+
+    def remembered_offset(self, obs: Observation) -> tuple[float, float]:
+        """(forward, right) from the vehicle to where the pad was last seen, in metres."""
+        n, e, _ = obs.position_ned_m
+        dn, de = self._pad_ne_m[0] - n, self._pad_ne_m[1] - e
+        c, s = math.cos(obs.attitude_rad[2]), math.sin(obs.attitude_rad[2])
+        return c * dn + s * de, -s * dn + c * de
+
+    @staticmethod
+    def _pad_position(view: PadEstimate, obs: Observation) -> np.ndarray:
+        n, e, _ = obs.position_ned_m
+        c, s = math.cos(obs.attitude_rad[2]), math.sin(obs.attitude_rad[2])
+        fwd, right = view.forward_m, view.right_m
+        return np.array([n + c * fwd - s * right, e + s * fwd + c * right])
 
 
 class ScriptedExpert(HumanInput):
@@ -97,9 +119,9 @@ class ScriptedExpert(HumanInput):
         yaw_rad = float(obs.attitude_rad[2])
         vel = heading_velocity(obs.velocity_ned_m_s, yaw_rad)
         now_ms = int(obs.time_boot_ms)
-        view = self._commit.update(view_of(obs, self.cfg))
+        view = self._commit.update(view_of(obs, self.cfg), obs)
         if view is None and self._commit.committed:
-            return self._set_down(vel, -self.cfg.descent_stick_slow)
+            return self._set_down(obs, vel)
         if view is None:
             return self._pad_lost(vel, now_ms)
         self._update_trim(view, now_ms)
@@ -131,17 +153,20 @@ class ScriptedExpert(HumanInput):
         return float(rate * centred)
 
     def _pad_lost(self, vel: np.ndarray, now_ms: int) -> JoystickCommand:
-        """A blink: carry on. Longer: brake and climb to see more of the ground."""
+        """A blink: carry on. Longer: brake (keeping the trim) and climb to see more."""
         seen = self._last_seen_ms
         if seen is not None and now_ms - seen < self.cfg.lost_hold_s * 1000.0:
             return self._last_command
-        return self._set_down(vel, self.cfg.search_climb_stick)
-
-    def _set_down(self, vel: np.ndarray, throttle: float) -> JoystickCommand:
-        """Hold position by feel (brake, keep the trim) while climbing or descending."""
         pitch = self._steer(0.0, vel[0], self._trim[0])
         roll = self._steer(0.0, vel[1], self._trim[1])
-        return JoystickCommand(roll=roll, pitch=pitch, yaw=0.0, throttle=throttle)
+        return JoystickCommand(roll, pitch, 0.0, self.cfg.search_climb_stick)
+
+    def _set_down(self, obs: Observation, vel: np.ndarray) -> JoystickCommand:
+        """Committed, pad not seen whole: steer to where it was, descend slowly."""
+        forward_m, right_m = self._commit.remembered_offset(obs)
+        pitch = self._steer(forward_m, vel[0], self._trim[0])
+        roll = self._steer(right_m, vel[1], self._trim[1])
+        return JoystickCommand(roll, pitch, 0.0, -self.cfg.descent_stick_slow)
 
 
 class ProgressWatch:
@@ -183,12 +208,14 @@ class InterventionRule:
     Take over at once when any of these is seen: the vehicle descends faster than
     ``takeover_descent_m_s``; the pad is lost; the pad drifts towards the image edge
     (``takeover_edge_fraction``); or it is off-centre by more than ``takeover_off_centre_m``
-    below ``takeover_low_height_m``. Let go once the vehicle has been back on track - descent
-    rate fine, pad within ``release_edge_fraction`` and (when low) within
-    ``release_off_centre_m`` - for ``release_hold_s`` of observation time. The release
+    below ``takeover_low_height_m``. Let go once the vehicle has been back on track - at least
+    ``release_descent_m`` lower than at the take-over, descent rate fine, pad within
+    ``release_edge_fraction`` and (when low) within ``release_off_centre_m`` - for
+    ``release_hold_s`` of observation time. The release
     thresholds are tighter than the take-over ones, so the rule does not chatter. Once the
     vehicle is committed to touchdown (see :class:`TouchdownCommit`), a partial or missing pad
-    is expected; then sliding faster than ``takeover_touchdown_speed_m_s`` is the danger.
+    is expected; then sliding faster than ``takeover_touchdown_speed_m_s`` is the danger, and
+    an expert who holds the sticks then keeps them until touchdown.
     A watching person also loses patience: no ``takeover_stall_descent_m`` of descent within
     ``takeover_stall_s`` is a reason to take over too.
     """
@@ -200,18 +227,20 @@ class InterventionRule:
     def reset(self) -> None:
         self._holding = False
         self._on_track_since_ms: int | None = None
+        self._takeover_down_m = 0.0
         self._commit = TouchdownCommit(self.cfg)
         self._progress = ProgressWatch(self.cfg.takeover_stall_s, self.cfg.takeover_stall_descent_m)
         self.takeovers = 0
 
     def update(self, obs: Observation) -> RuleState:
         """Advance the rule by one observation."""
-        view = self._commit.update(view_of(obs, self.cfg))
+        view = self._commit.update(view_of(obs, self.cfg), obs)
         stalled = self._progress.stalled(obs)
         danger = self._danger(obs, view) or ("not descending" if stalled else None)
         if not self._holding:
             if danger is not None:
                 self._holding, self._on_track_since_ms = True, None
+                self._takeover_down_m = float(obs.position_ned_m[2])
                 self._progress.restart()
                 self.takeovers += 1
             return RuleState(self._holding, danger)
@@ -234,6 +263,8 @@ class InterventionRule:
         if view is None and self._commit.committed:
             if math.hypot(vn, ve) > c.takeover_touchdown_speed_m_s:
                 return "sliding sideways at touchdown"
+            if math.hypot(*self._commit.remembered_offset(obs)) > c.takeover_off_centre_m:
+                return "drifting off the pad at touchdown"
             return None  # right above the pad: a glimpse of its rim says little
         if view is None:
             return "pad lost"
@@ -246,8 +277,12 @@ class InterventionRule:
     def _on_track(self, obs: Observation, view: PadEstimate | None) -> bool:
         """Called only when there is no danger: is the vehicle also well placed?"""
         c = self.cfg
+        if self._commit.committed:
+            return False  # nobody hands back control while setting the vehicle down
+        if float(obs.position_ned_m[2]) < self._takeover_down_m + c.release_descent_m:
+            return False
         if view is None:
-            return self._commit.committed
+            return False
         low = view.height_m < c.takeover_low_height_m
         return view.edge_fraction <= c.release_edge_fraction and (
             not low or view.offset_m <= c.release_off_centre_m
