@@ -336,7 +336,7 @@ def test_manual_control_feeds_the_ground_station_input_source(fake, make_link) -
 
     source = ManualControlInput(PilotConfig(manual_override_button=1))
     link = make_link()
-    link.on_manual_control(lambda message: source.feed(message.fields()))
+    link.on_manual_control(source.feed)  # the message reads as a mapping of its fields
     fake.send_manual_control(x=1000, y=-500, z=1000, r=0, buttons=0b10)
     assert _until(lambda: source.counts.messages == 1)
     human = source.read()
@@ -484,6 +484,7 @@ def test_manual_control_message_checks_itself() -> None:
     unused = ManualControlMessage(0, 0, 32767, 0, 1 << 31, 1, 255, 190, 0.0)
     assert unused.axis("z") is None and unused.pressed(31)
     assert unused.fields()["buttons2"] == 1 << 15
+    assert unused["z"] == 32767 and unused.get("buttons2") == 1 << 15 and len(dict(unused)) == 7
 
 
 # ------------------------------------------------------------------ against the real SITL

@@ -4,13 +4,13 @@ MAVLink defines x = pitch (forward +), y = roll (right +), z = thrust, r = yaw (
 each in -1000..1000 (QGroundControl and MAVProxy send thrust 0..1000), and ``INT16_MAX``
 for an axis that is not in use. Values outside that range mean a broken sender: the whole
 message is dropped (and counted by the link) rather than clamped, so garbage never steers.
-What passes is handed on in MAVLink's own units (:meth:`ManualControlMessage.fields`), so the
+What passes is handed on in MAVLink's own units (a mapping of field name to value), so the
 input source decides the mapping (throttle range, override button) from its config.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,8 +20,12 @@ AXES = ("x", "y", "z", "r")
 
 
 @dataclass(frozen=True)
-class ManualControlMessage:
-    """One checked MANUAL_CONTROL: raw axes in -1000..1000 or AXIS_UNUSED, 32 button bits."""
+class ManualControlMessage(Mapping[str, int]):
+    """One checked MANUAL_CONTROL: raw axes in -1000..1000 or AXIS_UNUSED, 32 button bits.
+
+    It also reads as a mapping of its MAVLink fields (``msg["x"]``, ``msg.get("buttons2")``),
+    so code written for pymavlink's ``msg.to_dict()`` takes it as it is.
+    """
 
     x: int
     y: int
@@ -55,6 +59,18 @@ class ManualControlMessage:
             "buttons": self.buttons & 0xFFFF, "buttons2": self.buttons >> 16,
             "target": self.target_system,
         }  # fmt: skip
+
+    def __getitem__(self, key: str) -> int:
+        return self.fields()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(FIELD_NAMES)
+
+    def __len__(self) -> int:
+        return len(FIELD_NAMES)
+
+
+FIELD_NAMES = ("x", "y", "z", "r", "buttons", "buttons2", "target")
 
 
 def manual_control_from_fields(
