@@ -328,6 +328,14 @@ def test_rule_takes_over_in_danger(observation: Observation, reason: str) -> Non
     assert rule.takeovers == 1
 
 
+def test_rule_ignores_a_blink_but_not_a_lost_pad() -> None:
+    rule = InterventionRule(CFG)
+    assert not rule.update(obs(pad_at(0.0, 0.0, 6.0), t_ms=0)).holding
+    assert not rule.update(obs(None, t_ms=100)).holding
+    state = rule.update(obs(None, t_ms=int(CFG.lost_hold_s * 1000)))
+    assert state.holding and state.reason == "pad lost"
+
+
 def test_rule_lets_go_only_after_being_on_track_for_the_hold_time() -> None:
     rule = InterventionRule(CFG)
     assert rule.update(obs(pad_at(0.8, 0.0, 1.8), t_ms=0)).holding  # off-centre, low

@@ -96,8 +96,8 @@ class ScriptedExpert(HumanInput):
     Gains are in stick units (per metre of offset, per m/s of speed), as a person would learn
     them for a given vehicle. Memory: a trim that grows while an offset lasts (as a pilot
     leans on the stick against a drift), the last command (a blink of the detector changes
-    nothing), and whether it has committed to touchdown (then it descends level, braking,
-    and no longer looks at the image).
+    nothing), and whether it has committed to touchdown (then it sets down where it last saw
+    the pad whole, ignoring partial glimpses).
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
@@ -205,19 +205,20 @@ class RuleState:
 class InterventionRule:
     """When a watching expert takes over, and when they let go.
 
-    Take over at once when any of these is seen: the vehicle descends faster than
-    ``takeover_descent_m_s``; the pad is lost; the pad drifts towards the image edge
-    (``takeover_edge_fraction``); or it is off-centre by more than ``takeover_off_centre_m``
-    below ``takeover_low_height_m``. Let go once the vehicle has been back on track - at least
-    ``release_descent_m`` lower than at the take-over, descent rate fine, pad within
-    ``release_edge_fraction`` and (when low) within ``release_off_centre_m`` - for
-    ``release_hold_s`` of observation time. The release
-    thresholds are tighter than the take-over ones, so the rule does not chatter. Once the
-    vehicle is committed to touchdown (see :class:`TouchdownCommit`), a partial or missing pad
-    is expected; then sliding faster than ``takeover_touchdown_speed_m_s`` is the danger, and
-    an expert who holds the sticks then keeps them until touchdown.
-    A watching person also loses patience: no ``takeover_stall_descent_m`` of descent within
-    ``takeover_stall_s`` is a reason to take over too.
+    Take over at once when: the vehicle descends faster than ``takeover_descent_m_s``; the
+    pad has been lost for ``lost_hold_s``; the pad drifts towards the image edge
+    (``takeover_edge_fraction``); it is off-centre by more than ``takeover_off_centre_m``
+    below ``takeover_low_height_m``; or the descent stalls (less than
+    ``takeover_stall_descent_m`` in ``takeover_stall_s``: a watching person loses patience).
+    Once committed to touchdown (:class:`TouchdownCommit`) a partial or missing pad is
+    expected, and sliding (``takeover_touchdown_speed_m_s``) or drifting off the remembered
+    pad position is the danger.
+
+    Let go after ``release_hold_s`` of being back on track: at least ``release_descent_m``
+    lower than at the take-over, pad within ``release_edge_fraction`` and, when low, within
+    ``release_off_centre_m`` (tighter than the take-over thresholds, so the rule does not
+    chatter). Nobody hands back control while setting the vehicle down: once committed, the
+    expert keeps the sticks until touchdown.
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
@@ -228,6 +229,7 @@ class InterventionRule:
         self._holding = False
         self._on_track_since_ms: int | None = None
         self._takeover_down_m = 0.0
+        self._last_seen_ms: int | None = None
         self._commit = TouchdownCommit(self.cfg)
         self._progress = ProgressWatch(self.cfg.takeover_stall_s, self.cfg.takeover_stall_descent_m)
         self.takeovers = 0
@@ -235,6 +237,8 @@ class InterventionRule:
     def update(self, obs: Observation) -> RuleState:
         """Advance the rule by one observation."""
         view = self._commit.update(view_of(obs, self.cfg), obs)
+        if obs.pad is not None:
+            self._last_seen_ms = int(obs.time_boot_ms)
         stalled = self._progress.stalled(obs)
         danger = self._danger(obs, view) or ("not descending" if stalled else None)
         if not self._holding:
@@ -267,7 +271,9 @@ class InterventionRule:
                 return "drifting off the pad at touchdown"
             return None  # right above the pad: a glimpse of its rim says little
         if view is None:
-            return "pad lost"
+            seen = self._last_seen_ms
+            lost_ms = math.inf if seen is None else int(obs.time_boot_ms) - seen
+            return "pad lost" if lost_ms >= c.lost_hold_s * 1000.0 else None
         if view.edge_fraction > c.takeover_edge_fraction:
             return "pad near the image edge"
         if view.height_m < c.takeover_low_height_m and view.offset_m > c.takeover_off_centre_m:
