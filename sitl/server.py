@@ -265,6 +265,8 @@ class SitlServer:
             v.step()
             if not strict:
                 self._send_due()
+                if self.camera is not None and not self.lockstep:
+                    self.camera.publish_if_due(blocking=False)
                 self._pace()
         if strict:
             self._send_due()
@@ -286,7 +288,6 @@ class SitlServer:
                 return
 
     def _await_answer(self) -> None:
-        deadline = time.monotonic() + self.cfg.clock.lockstep_timeout_s
         timeout_s = self.cfg.clock.lockstep_timeout_s if self.stats.attached else 0.0
         deadline = time.monotonic() + timeout_s
         while not self._answered and not self._stop.is_set():
@@ -308,13 +309,14 @@ class SitlServer:
                 self._wall0, self._sim0 = time.monotonic(), self.vehicle.time_s
 
     def _end_frame(self) -> None:
-        """Camera image, pending events and the frame marker, in that order."""
+        """Camera image (lockstep: the frame's own), pending events and the frame marker."""
         v = self.vehicle
         self.stats.frames += 1
         self._answered = False
         self._frame_ms = v.time_boot_ms
         if self.camera is not None:
-            self.camera.publish(blocking=self._strict())
+            if self.lockstep:  # every frame's own image, fully written before its marker
+                self.camera.publish(blocking=True)
             if v.time_s >= self._next_camera_heartbeat_s:
                 self._next_camera_heartbeat_s = v.time_s + 1.0
                 hb = M.MAVLink_heartbeat_message(M.MAV_TYPE_CAMERA, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
@@ -490,8 +492,18 @@ class _CameraFeed:
 
         self.vehicle = vehicle
         self.renderer = CameraRenderer(cfg.camera, vehicle.world)
-        self.server = FrameServer(cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding)
+        self.server = FrameServer(cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding,
+                                  jpeg_quality=cfg.camera.jpeg_quality)
         self.frame_number = 0
+        self.interval_s = 1.0 / cfg.camera.stream_rate_hz
+        self._next_s = 0.0
+
+    def publish_if_due(self, blocking: bool) -> None:
+        """Real time: frames on their own clock (stream_rate_hz of simulation time)."""
+        t = self.vehicle.time_s
+        if t + 1e-9 >= self._next_s:
+            self._next_s = max(self._next_s + self.interval_s, t)
+            self.publish(blocking)
 
     def publish(self, blocking: bool) -> None:
         from sitl.frames import Frame
