@@ -127,3 +127,22 @@ def test_manual_control_flies_in_posctl(vehicle: SimVehicle) -> None:
     run_s(vehicle, 3.0, lambda v: v.manual_control(0, 0, 500, 0))  # centred: hold
     assert abs(vehicle.state.velocity_ned_m_s[1]) < 0.3
     assert vehicle.state.position_ned_m[1] - e1 < 3.0
+
+
+def test_an_episode_does_not_depend_on_the_episodes_before_it() -> None:
+    def fly(v: SimVehicle, seed: int) -> list[tuple[float, ...]]:
+        v.reset_episode(seed)
+        trace = []
+        for i in range(600):
+            if i % 12 == 0:
+                v.offboard_setpoint(body_velocity(math.sin(i / 50), math.cos(i / 70), 0.3, 0.1))
+                if i == 12:
+                    v.request_mode(Mode.OFFBOARD)
+            s = v.step()
+            trace.append(s.position_ned_m + s.attitude_rad)
+        return trace
+
+    fresh = fly(SimVehicle(SitlConfig()), 5)
+    used = SimVehicle(SitlConfig())
+    fly(used, 7)
+    assert fly(used, 5) == fresh  # bit for bit
