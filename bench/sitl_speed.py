@@ -75,7 +75,7 @@ def lockstep_factor(sim_s: float) -> tuple[float, dict]:
                 if msg.get_type() != "SYSTEM_TIME":
                     continue
                 t_ms = msg.time_boot_ms
-                if t0_ms is None:
+                if t0_ms is None and frames == 2:  # the SITL is attached (strict lockstep) from here
                     t0_ms, wall0 = t_ms, time.perf_counter()
                 ts = t_ms / 1000.0
                 sp = mavlink.MAVLink_set_position_target_local_ned_message(
