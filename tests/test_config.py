@@ -1,0 +1,68 @@
+"""Configuration: the shipped presets match the code, and bad input is refused clearly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from companion.config import CompanionConfig, load_companion_config
+from companion.errors import ConfigError
+from sitl.cli import build_config
+from sitl.config import SitlConfig, load_sitl_config
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def test_default_toml_is_exactly_the_built_in_defaults() -> None:
+    assert load_sitl_config(CONFIGS / "default.toml") == SitlConfig()
+    assert load_companion_config(CONFIGS / "default.toml") == CompanionConfig()
+
+
+@pytest.mark.parametrize("path", sorted(CONFIGS.glob("*.toml")), ids=lambda p: p.name)
+def test_every_shipped_preset_loads(path: Path) -> None:
+    load_sitl_config(path)
+    load_companion_config(path)
+
+
+def test_unknown_key_names_the_key(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text("[companion.learner]\nlearning_rat = 0.1\n")
+    with pytest.raises(ConfigError, match="learner.learning_rat"):
+        load_companion_config(f)
+
+
+def test_wrong_type_and_range_are_explained(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text('[sitl.clock]\nspeed = -3\nmode = "fast"\n')
+    with pytest.raises(ConfigError) as info:
+        load_sitl_config(f)
+    assert "clock.speed" in str(info.value) and "clock.mode" in str(info.value)
+
+
+def test_missing_file_bad_toml_and_unknown_table(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_companion_config(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sitl\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_sitl_config(bad)
+    extra = tmp_path / "extra.toml"
+    extra.write_text("[drone]\nx = 1\n")
+    with pytest.raises(ConfigError, match="unknown top-level"):
+        load_companion_config(extra)
+
+
+def test_partial_file_keeps_other_defaults(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text("[companion.session]\nmax_steps = 50\n")
+    cfg = load_companion_config(f)
+    assert cfg.session.max_steps == 50
+    assert cfg.learner == CompanionConfig().learner
+
+
+def test_sitl_command_line_overrides_are_validated() -> None:
+    cfg = build_config(SitlConfig(), clock="lockstep", speed=4.0, udp=["0:14540"], tcp=-1, no_camera=True)
+    assert cfg.clock.mode == "lockstep" and cfg.network.tcp_port is None and not cfg.camera.enabled
+    with pytest.raises(ConfigError, match="clock.mode"):
+        build_config(SitlConfig(), clock="sometimes")
