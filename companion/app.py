@@ -95,6 +95,7 @@ class RunOptions:
     """What a person chooses on the command line (the rest comes from the config)."""
 
     connection: str | None = None
+    simulator: str | None = None  # HOST:PORT of an external SITL's control surface
     pilot: str = "expert"
     condition: str = "col"
     episodes: int | None = None
@@ -155,6 +156,18 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         sitl.stop()
 
 
+def _simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorClient | None:
+    """The SITL's control surface: ours, the one named by --simulator, or none (real vehicle)."""
+    if sitl is not None:
+        return SimulatorClient("127.0.0.1", sitl.control_port)
+    if opts.simulator:
+        host, sep, port = opts.simulator.rpartition(":")
+        if not sep or not port.isdigit():
+            raise ConfigError(f"--simulator takes HOST:PORT of the SITL's control surface, got {opts.simulator!r}")
+        return SimulatorClient(host or "127.0.0.1", int(port))
+    return None
+
+
 def _open_camera(cfg: CompanionConfig, sitl: SitlProcess | None) -> CameraSource | None:
     auto_uri = sitl.ports.get("camera_uri") if sitl is not None else None
     try:
@@ -184,7 +197,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
         stack.callback(link.close)
         link.connect(timeout_s=30.0)
-        simulator = SimulatorClient("127.0.0.1", sitl.control_port) if sitl is not None else None
+        simulator = _simulator_client(opts, sitl)
         if simulator is not None:
             stack.callback(simulator.close)
         camera = _open_camera(cfg, sitl)

@@ -1,4 +1,4 @@
-"""``col``: fly, learn and evaluate. Without --connect, each command starts the SITL for you."""
+"""col: fly, learn and evaluate. Without --connect, each command starts the SITL for you."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ from companion.errors import ColError
 
 app = typer.Typer(add_completion=False, help=__doc__, no_args_is_help=True)
 
-ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="TOML config ([companion] and [sitl] tables); default: the paper's setting")]
+ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="TOML config (\\[companion] and \\[sitl] tables); default: the paper's setting")]
 ConnectOpt = Annotated[str | None, typer.Option("--connect", help="MAVLink connection (udpin:0.0.0.0:14540, tcp:host:port, /dev/ttyACM0,57600); default: start the SITL")]
+SimulatorOpt = Annotated[str | None, typer.Option("--simulator", help="HOST:PORT of an external SITL's control surface (episode resets, ground truth)")]
 SeedOpt = Annotated[int | None, typer.Option(help="seed of the first episode (episode i uses seed + i)")]
 RunDirOpt = Annotated[Path | None, typer.Option("--run-dir", help="where to write dataset, checkpoints, logs (default: runs/<time>-<condition>)")]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="log what happens")]
@@ -74,6 +75,8 @@ def _fail(exc: Exception) -> typer.Exit:
 @app.command()
 def fly(
     connect: ConnectOpt = None,
+    simulator: SimulatorOpt = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), colf://host:port, device index, file or URL')] = None,
     pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
@@ -82,6 +85,7 @@ def fly(
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
     learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
+    lockstep: Annotated[bool | None, typer.Option("--lockstep/--realtime", help="answer the SITL's frames (lockstep) or pace by the wall clock; default: lockstep for a synthetic pilot in our own SITL")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Fly episodes: the person (or scripted expert) demonstrates or intervenes; the policy learns."""
@@ -90,8 +94,10 @@ def fly(
 
     try:
         cfg = _load(config)
-        opts = RunOptions(connection=connect, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,
-                          run_dir=run_dir, config_path=config, seed=seed, learn=learn)
+        if camera is not None:
+            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
+        opts = RunOptions(connection=connect, simulator=simulator, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,
+                          run_dir=run_dir, config_path=config, seed=seed, learn=learn, lockstep=lockstep)
         result = _run(cfg, opts, f"fly {condition}")
     except ColError as exc:
         raise _fail(exc) from None

@@ -1,4 +1,4 @@
-"""``col-sitl``: run the simulated multirotor behind MAVLink until SIGINT/SIGTERM."""
+"""col-sitl: run the simulated multirotor behind MAVLink until SIGINT/SIGTERM."""
 
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ def build_config(
 
 @app.command()
 def run(
-    config: Annotated[Path | None, typer.Option(help="TOML config file ([sitl] tables); default: built-in paper setting")] = None,
+    config: Annotated[Path | None, typer.Option(help="TOML config file (\\[sitl] tables); default: built-in paper setting")] = None,
     clock: Annotated[str | None, typer.Option(help="realtime or lockstep")] = None,
     speed: Annotated[float | None, typer.Option(help="real-time speed factor (sim s per wall s)")] = None,
     seed: Annotated[int | None, typer.Option(help="seed for episode starts")] = None,
