@@ -32,6 +32,7 @@ log = logging.getLogger("sitl.server")
 M = mavlink
 DETACH_AFTER_TIMEOUTS = 3
 MAX_TCP_BACKLOG_BYTES = 1 << 20
+CONTROL_REPLY_TIMEOUT_S = 1.0
 UDP_PAYLOAD_BYTES = 1472  # one Ethernet MTU: what a real radio or network link carries
 
 
@@ -428,14 +429,23 @@ class SitlServer:
         except OSError:
             data = b""
         if not data or len(cc.buffer) > 1 << 16:
-            self.sel.unregister(cc.sock)
-            cc.sock.close()
+            self._close_control(cc)
             return
         cc.buffer += data
-        while b"\n" in cc.buffer:
+        while b"\n" in cc.buffer and not cc.closed:
             line, cc.buffer = cc.buffer.split(b"\n", 1)
             if line.strip():
                 self._reply_control(cc, line)
+
+    def _close_control(self, cc: ControlClient) -> None:
+        if cc.closed:
+            return
+        cc.closed = True
+        try:
+            self.sel.unregister(cc.sock)
+        except (KeyError, ValueError):
+            pass
+        cc.sock.close()
 
     def _reply_control(self, cc: ControlClient, line: bytes) -> None:
         camera_uri = self.camera.server.uri if self.camera else None
@@ -448,12 +458,17 @@ class SitlServer:
                 self._answered = True  # a reset answers the frame: the next one shows the start
         except RequestError as exc:
             reply = {"ok": False, "error": str(exc)}
-        try:
-            cc.sock.setblocking(True)
+        except (RecursionError, ValueError, TypeError, OverflowError, KeyError) as exc:
+            # what the checks missed (JSON nested too deep, ...) is refused; it never ends the run
+            log.warning("control request refused: %r", exc)
+            reply = {"ok": False, "error": f"bad request ({type(exc).__name__}): {exc}"}
+        try:  # bounded: a client that never reads its replies must not stall the simulation
+            cc.sock.settimeout(CONTROL_REPLY_TIMEOUT_S)
             cc.sock.sendall((json.dumps(reply) + "\n").encode())
             cc.sock.setblocking(False)
         except OSError:
-            pass
+            log.warning("control client does not take its replies; closing it")
+            self._close_control(cc)
         self._flush_events()
         self._flush_all()
 
