@@ -7,6 +7,8 @@ tick whose snapshot was trained on a dataset that held it (``dataset_size_traine
 at least one control period (95 ms); ``sample_to_publish_ms_*`` is the learner's own share
 (sample recorded -> snapshot published). The live run sets the loss threshold out of reach, so
 the learner trains without pause the whole time: the worst case for both jitter and latency.
+The same loop without a learner runs half the time before and half after (``..._idle``): the
+machine's own timing noise under whatever else is running on it.
 
 Last line of stdout: one JSON object. Run with ``--quick`` for a short run.
 """
@@ -90,7 +92,7 @@ class _LiveRun:
         self.obs = np.zeros(15, np.float32)
 
     def tick(self, now: float) -> None:
-        snap = self.thread.latest_snapshot
+        snap = self.thread.on_control_step()
         for i in range(len(self.flown_at), min(snap.dataset_size_trained, len(self.recorded_at))):
             self.flown_at[i] = now
         snap.act(self.obs)
@@ -152,7 +154,7 @@ def live_run(config: LearnerConfig, duration_s: float, rng: np.random.Generator)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="short run (about 15 s)")
+    parser.add_argument("--quick", action="store_true", help="short run (about 20 s)")
     args = parser.parse_args()
     duration_s = 8.0 if args.quick else 60.0
     config = LearnerConfig()
@@ -160,9 +162,10 @@ def main() -> None:
     rng = np.random.default_rng(0)
 
     updates_per_s = measure_updates_per_s(config, 500 if args.quick else 3000, rng)
-    idle = jitter_ms(control_loop(min(duration_s, 5.0), lambda now: None))
     busy = config.model_copy(update={"loss_threshold": 1e-9})
+    idle_before = jitter_ms(control_loop(duration_s / 2, lambda now: None))
     live = live_run(busy, duration_s, rng)
+    idle = np.concatenate([idle_before, jitter_ms(control_loop(duration_s / 2, lambda now: None))])
     print(f"updates/s {updates_per_s:.0f}; sample->policy p50 {live['sample_to_policy_ms_p50']} ms "
           f"p95 {live['sample_to_policy_ms_p95']} ms (learner's share p95 "
           f"{live['sample_to_publish_ms_p95']} ms); jitter p99 "

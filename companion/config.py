@@ -118,6 +118,9 @@ class LearnerConfig(Section):
         8, ge=1, description="publish a snapshot at least this often (and after any new data)"
     )
     thread_nice: int = Field(10, ge=0, le=19, description="learner thread's OS niceness (Linux)")
+    control_guard_s: float = Field(
+        0.003, ge=0, le=0.05, description="learner thread steps aside this long before a control tick"
+    )
     gil_switch_interval_s: float = Field(
         0.001, gt=0, le=0.1, description="while the learner thread runs: bounds control's GIL wait"
     )

@@ -18,6 +18,7 @@ import math
 import os
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
@@ -77,7 +78,9 @@ class Learner:
         self.dataset = dataset
         self.rng = rng if rng is not None else np.random.default_rng(config.seed)
         self.model = self._make_model(config, obs_dim, normalisation, initial)
-        self.optimizer = torch.optim.RMSprop(self.model.parameters(), lr=config.learning_rate)
+        self.optimizer = torch.optim.RMSprop(
+            self.model.parameters(), lr=config.learning_rate, foreach=True
+        )
         self.updates = initial.version if initial else 0
         self.last_loss = math.nan
         self._lock = threading.RLock()
@@ -155,11 +158,13 @@ class Learner:
         if n > self._round_size:
             self._round_size, self._round_updates, self._converged = n, 0, False
 
-    def train_until_converged(self, budget: int | None = None) -> TrainResult:
+    def train_until_converged(self, budget: int | None = None, *,
+                              publish_at_end: bool = True) -> TrainResult:
         """Run the paper's loop for at most ``budget`` updates (None: until the round ends).
 
         Publishes a snapshot every ``publish_every_updates`` updates, right after the first
-        update that saw new samples, and at the end of the call if anything changed.
+        update that saw new samples, when the round ends, and (``publish_at_end``) at the end
+        of the call if anything changed.
         """
         with self._lock:
             done = 0
@@ -173,7 +178,7 @@ class Learner:
                 self._converged = loss < self.config.loss_threshold
                 if self._should_publish():
                     self.publish()
-            if self._since_publish:
+            if self._since_publish and (publish_at_end or not self.has_work):
                 self.publish()
             return TrainResult(done, self.last_loss, self._converged, self._round_updates,
                                self._capped and not self._converged, len(self.dataset))
@@ -239,23 +244,71 @@ class LearnerState(Enum):
     STOPPED = "stopped"
 
 
+class ControlTickGuard:
+    """Keeps the learner off the GIL around each expected control tick.
+
+    The control loop reports its ticks (``tick()``); from them the guard learns the period.
+    ``pause()``, called by the learner between updates, blocks (without holding the GIL) from
+    ``guard_s`` before the next expected tick until that tick is reported, or until
+    ``guard_s`` after it at the latest, so a control loop that stops ticking never stalls
+    learning. Without reported ticks it never pauses.
+    """
+
+    def __init__(self, guard_s: float, period_s: float | None = None) -> None:
+        self.guard_s = guard_s
+        self.period_s = period_s
+        self._fixed_period = period_s is not None
+        self._cond = threading.Condition(threading.Lock())
+        self._ticks = 0
+        self._last_tick_s: float | None = None
+
+    def tick(self) -> None:
+        """Called by the control loop once per tick (cheap: a lock and a notify)."""
+        now = time.perf_counter()
+        with self._cond:
+            if self._last_tick_s is not None and not self._fixed_period:
+                interval = now - self._last_tick_s
+                if interval < 1.0:  # a pause between episodes is not a period
+                    self.period_s = interval if self.period_s is None else (
+                        0.8 * self.period_s + 0.2 * interval)
+            self._last_tick_s = now
+            self._ticks += 1
+            self._cond.notify_all()
+
+    def pause(self) -> float:
+        """Block while a control tick is imminent; returns the seconds spent waiting."""
+        last, period = self._last_tick_s, self.period_s
+        if self.guard_s <= 0 or last is None or not period:
+            return 0.0
+        now = time.perf_counter()
+        # the first expected tick whose window [tick - guard, tick + guard] has not passed
+        next_tick = last + period * max(1, math.floor((now - self.guard_s - last) / period) + 1)
+        if not next_tick - self.guard_s <= now < next_tick + self.guard_s:
+            return 0.0
+        with self._cond:
+            seen = self._ticks
+            self._cond.wait_for(lambda: self._ticks != seen, timeout=next_tick + self.guard_s - now)
+        return time.perf_counter() - now
+
+
 class LearnerThread:
     """Runs the paper's loop continuously in a daemon thread (live flight).
 
-    The control loop only reads ``latest_snapshot`` (one attribute load). A failure ends the
-    thread with state FAILED, is logged and kept in ``error``; the last good snapshot stays.
+    The control loop calls ``on_control_step()`` once per tick for the snapshot to fly (one
+    attribute load). A failure ends the thread with state FAILED, is logged and kept in
+    ``error``; the last good snapshot stays.
 
     So that control keeps its core and its timing, the thread limits torch's threads, lowers
-    its own OS priority (``thread_nice``) and, while it runs, shortens the interpreter's GIL
-    switch interval (``gil_switch_interval_s``; restored by ``stop``): a control thread waking
-    up waits at most about that long for the GIL instead of the default 5 ms.
+    its own OS priority (``thread_nice``), steps aside just before each expected control tick
+    (:class:`ControlTickGuard`, ``control_guard_s``) and, while it runs, shortens the GIL
+    switch interval (``gil_switch_interval_s``; restored by ``stop``) for anything else.
     """
 
-    def __init__(self, learner: Learner, *, chunk_updates: int | None = None,
+    def __init__(self, learner: Learner, *, control_period_s: float | None = None,
                  idle_wait_s: float = 0.05) -> None:
         self.learner = learner
-        self.chunk_updates = chunk_updates or learner.config.publish_every_updates
         self.idle_wait_s = idle_wait_s
+        self.guard = ControlTickGuard(learner.config.control_guard_s, control_period_s)
         self._state = LearnerState.NEW
         self._error: BaseException | None = None
         self._stop = threading.Event()
@@ -276,7 +329,8 @@ class LearnerThread:
         return self.learner.latest_snapshot
 
     def on_control_step(self) -> PolicySnapshot:
-        """The snapshot to fly now; the thread trains on its own."""
+        """Report a control tick and get the snapshot to fly now; never waits for training."""
+        self.guard.tick()
         return self.learner.latest_snapshot
 
     def start(self) -> None:
@@ -289,7 +343,7 @@ class LearnerThread:
         self._thread.start()
 
     def stop(self, timeout_s: float = 5.0) -> LearnerState:
-        """Ask the thread to end after its current chunk; returns the final state."""
+        """Ask the thread to end after its current update; returns the final state."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout_s)
@@ -315,7 +369,8 @@ class LearnerThread:
             while not self._stop.is_set():
                 if self.learner.has_work:
                     self._state = LearnerState.TRAINING
-                    self.learner.train_until_converged(budget=self.chunk_updates)
+                    self.guard.pause()
+                    self.learner.train_until_converged(budget=1, publish_at_end=False)
                 else:
                     self._state = LearnerState.IDLE
                     self.learner.dataset.wait_for_growth(self.learner.round_size, self.idle_wait_s)

@@ -15,6 +15,7 @@ from companion.config import LearnerConfig
 from companion.dataset import DatasetView, HumanDataset, Sample, Source
 from companion.learner import (
     BudgetedLearner,
+    ControlTickGuard,
     Learner,
     LearnerState,
     LearnerThread,
@@ -261,7 +262,7 @@ def test_control_period_unaffected_by_a_busy_learner(rng: np.random.Generator) -
             next_t += period_s
             time.sleep(max(0.0, next_t - time.perf_counter()))
             stamps.append(time.perf_counter())
-            thread.latest_snapshot.act(np.zeros(15, np.float32))
+            thread.on_control_step().act(np.zeros(15, np.float32))
             _grow(ds, rng, 1)
         busy_updates = learner.updates - updates_before
     jitter_ms = np.abs(np.diff(stamps) - period_s) * 1e3
@@ -280,3 +281,27 @@ def test_thread_keeps_out_of_controls_way_and_restores_the_interpreter() -> None
         if hasattr(os, "getpriority") and native_id is not None:
             assert os.getpriority(os.PRIO_PROCESS, native_id) >= 7
     assert sys.getswitchinterval() == before
+
+
+def test_tick_guard_steps_aside_only_around_expected_ticks() -> None:
+    guard = ControlTickGuard(guard_s=0.02, period_s=0.1)
+    assert guard.pause() == 0.0  # no tick reported yet: never pauses
+    guard.tick()
+    assert guard.pause() == 0.0  # the next tick is 100 ms away
+    time.sleep(0.085)  # now inside the window before the next expected tick
+    timer = threading.Timer(0.01, guard.tick)
+    timer.start()
+    waited_s = guard.pause()
+    assert 0.004 < waited_s < 0.05, waited_s  # released by the tick, not by the timeout
+    time.sleep(0.085)  # no tick comes this time: the pause ends guard_s after the expected tick
+    waited_s = guard.pause()
+    assert 0.015 < waited_s < 0.06, waited_s
+    assert guard.pause() == 0.0  # the missed tick's window has passed
+
+
+def test_tick_guard_learns_the_period() -> None:
+    guard = ControlTickGuard(guard_s=0.003)
+    for _ in range(6):
+        guard.tick()
+        time.sleep(0.02)
+    assert guard.period_s is not None and 0.018 < guard.period_s < 0.04
