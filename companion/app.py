@@ -168,8 +168,19 @@ def _simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorCl
     return None
 
 
-def _open_camera(cfg: CompanionConfig, sitl: SitlProcess | None) -> CameraSource | None:
+def _open_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: VehicleLink,
+                 camera_component: int = 100) -> CameraSource | None:
+    """The camera. ``"auto"``: our SITL's stream, or on another vehicle the stream its MAVLink
+    camera (component 100, MAV_COMP_ID_CAMERA) advertises in VIDEO_STREAM_INFORMATION."""
     auto_uri = sitl.ports.get("camera_uri") if sitl is not None else None
+    if auto_uri is None and cfg.perception.camera.strip() == "auto":
+        try:
+            info = link.request_message("VIDEO_STREAM_INFORMATION", camera_component, cfg.perception.open_timeout_s)
+        except ColError as exc:
+            log.warning("the vehicle's camera did not describe its video stream: %s", exc)
+            info = None
+        uri = str(info.get("uri") or "").strip("\x00 ") if info is not None else ""
+        auto_uri = uri or None
     try:
         return open_camera(cfg.perception.camera, auto_uri=auto_uri, open_timeout_s=cfg.perception.open_timeout_s)
     except ColError:
@@ -200,7 +211,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         simulator = _simulator_client(opts, sitl)
         if simulator is not None:
             stack.callback(simulator.close)
-        camera = _open_camera(cfg, sitl)
+        camera = _open_camera(cfg, sitl, link)
         if camera is not None:
             stack.callback(camera.close)
         dataset = HumanDataset(run_dir / "human.csv" if opts.record else None)

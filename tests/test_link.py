@@ -512,3 +512,156 @@ def test_link_contract_against_the_sitl(kind: str, clock: str) -> None:
     finally:
         sitl.terminate()
         sitl.wait(timeout=10)
+
+
+# ------------------------------------------------------------------ request_message (camera discovery)
+CAMERA = 100  # MAV_COMP_ID_CAMERA
+
+
+class FakeCamera:
+    """A MAVLink camera component (system 1, component 100) beside the fake autopilot.
+
+    It watches what the fake vehicle receives and answers REQUEST_MESSAGE addressed to
+    component 100 through the vehicle's socket, as a camera on the vehicle's bus would.
+    """
+
+    def __init__(self, fake: FakeVehicle, uri: str, result: int = mavlink.MAV_RESULT_ACCEPTED) -> None:
+        self.fake, self.uri, self.result = fake, uri, result
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=CAMERA)
+
+    def answer_next(self, timeout_s: float = 2.0) -> None:
+        request = self.fake.wait_for("COMMAND_LONG", timeout_s, lambda m: m.target_component == CAMERA
+                                     and m.command == mavlink.MAV_CMD_REQUEST_MESSAGE)  # fmt: skip
+        ack = mavlink.MAVLink_command_ack_message(request.command, self.result, 0, 0, 255, 0)
+        replies = [ack]
+        if self.result == mavlink.MAV_RESULT_ACCEPTED:
+            replies.append(mavlink.MAVLink_video_stream_information_message(
+                1, 1, mavlink.VIDEO_STREAM_TYPE_TCP_MPEG, 1, 10.0, 64, 48, 0, 0, 90, b"down",
+                self.uri.encode()))  # fmt: skip
+        self.fake.send_garbage(b"".join(m.pack(self.mav) for m in replies))  # raw bytes as comp 100
+
+    def start(self) -> None:
+        import threading
+
+        threading.Thread(target=self.answer_next, daemon=True).start()
+
+
+def test_request_message_returns_the_fields_the_component_sends(fake, make_link) -> None:
+    link = make_link()
+    FakeCamera(fake, "colf://127.0.0.1:5600").start()
+    info = link.request_message("VIDEO_STREAM_INFORMATION", CAMERA, timeout_s=2.0)
+    assert info is not None and info["uri"] == "colf://127.0.0.1:5600" and info["hfov"] == 90
+    request = fake.commands(mavlink.MAV_CMD_REQUEST_MESSAGE)[0]
+    assert (request.target_system, request.target_component) == (1, CAMERA)
+    assert int(request.param1) == mavlink.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION
+
+
+def test_request_message_to_the_autopilot_returns_its_reply(fake, make_link) -> None:
+    info = make_link().request_message("AUTOPILOT_VERSION", 1, timeout_s=2.0)
+    assert info is not None and "flight_sw_version" in info and "mavpackettype" not in info
+
+
+def test_request_message_without_such_component_gives_none_in_time(fake, make_link) -> None:
+    link = make_link()  # the fake autopilot ACKs everything as component 1: not the camera's ACK
+    t0 = time.monotonic()
+    assert link.request_message("VIDEO_STREAM_INFORMATION", CAMERA, timeout_s=0.8) is None
+    assert 0.7 < time.monotonic() - t0 < 1.5
+    assert len(fake.commands(mavlink.MAV_CMD_REQUEST_MESSAGE)) >= 2  # resent, command_timeout_s=0.3
+
+
+def test_request_message_refusal_raises_command_rejected(fake, make_link) -> None:
+    link = make_link()
+    FakeCamera(fake, "", result=mavlink.MAV_RESULT_DENIED).start()
+    with pytest.raises(CommandRejected, match="DENIED"):
+        link.request_message("VIDEO_STREAM_INFORMATION", CAMERA, timeout_s=2.0)
+    with pytest.raises(CommandRejected, match="UNSUPPORTED"):
+        link.request_message("CAMERA_INFORMATION", 1, timeout_s=2.0)  # the autopilot has none
+    with pytest.raises(ValueError, match="unknown MAVLink message"):
+        link.request_message("NO_SUCH_MESSAGE", 1)
+
+
+def _video_file(path, frames: int = 20) -> str:
+    """A small real video file (MJPG in AVI) that OpenCV can play back."""
+    import cv2
+    import numpy as np
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (64, 48))
+    for i in range(frames):
+        writer.write(np.full((48, 64, 3), 10 * i % 255, dtype=np.uint8))
+    writer.release()
+    return str(path)
+
+
+def test_auto_camera_opens_the_stream_the_vehicle_advertises(fake, make_link, tmp_path) -> None:
+    from companion.app import _open_camera
+    from companion.config import CompanionConfig
+
+    link = make_link()
+    FakeCamera(fake, _video_file(tmp_path / "down.avi")).start()
+    camera = _open_camera(CompanionConfig(), None, link)
+    try:
+        assert camera is not None and _until(lambda: camera.latest() is not None)
+        assert camera.latest().image.shape == (48, 64, 3)  # type: ignore[union-attr]
+    finally:
+        if camera is not None:
+            camera.close()
+
+
+def test_auto_camera_without_a_camera_component_says_what_to_set(fake, make_link) -> None:
+    from companion.app import _open_camera
+    from companion.config import CompanionConfig, PerceptionConfig
+    from companion.errors import CameraError
+
+    cfg = CompanionConfig(perception=PerceptionConfig(open_timeout_s=0.5))
+    with pytest.raises(CameraError, match="advertised no video stream"):
+        _open_camera(cfg, None, make_link())
+
+
+@pytest.fixture
+def realtime_sitl() -> Iterator[tuple[object, int]]:
+    from companion.simulator import start_sitl
+
+    port = free_udp_port()
+    sitl = start_sitl(port, clock="realtime", seed=5)
+    yield sitl, port
+    sitl.stop()
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_auto_camera_on_an_external_sitl_is_found_through_mavlink(realtime_sitl, tmp_path) -> None:
+    """Connected as to any vehicle (RunOptions.connection): the camera comes from component 100."""
+    import csv
+
+    from companion.app import RunOptions, run_episodes
+    from companion.config import load_companion_config
+
+    sitl, port = realtime_sitl
+    with MavlinkLink(LinkConfig(connection=f"udpin:127.0.0.1:{port}")) as link:
+        link.connect(timeout_s=10.0)
+        info = link.request_message("VIDEO_STREAM_INFORMATION", CAMERA, timeout_s=3.0)
+    assert info is not None and info["uri"] == sitl.ports["camera_uri"]  # type: ignore[attr-defined]
+
+    config = tmp_path / "short.toml"
+    config.write_text("[companion.session]\nmax_steps = 3\nstart_tolerance_m = 50.0\n")
+    opts = RunOptions(connection=f"udpin:127.0.0.1:{port}", pilot="expert", condition="demo", episodes=1,
+                      run_dir=tmp_path / "run", config_path=config, learn=False,
+                      simulator=f"127.0.0.1:{sitl.control_port}")  # type: ignore[attr-defined]
+    result = run_episodes(load_companion_config(config), opts)
+    assert result.records[0].steps == 3
+    with (tmp_path / "run" / "human.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3 and all(float(r["pad_radius"]) > 0 for r in rows)  # the camera saw the pad
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_mavsdk_request_message_finds_the_sitl_camera(realtime_sitl) -> None:
+    sitl, port = realtime_sitl
+    with open_link(LinkConfig(connection=f"udpin:127.0.0.1:{port}"), kind="mavsdk") as link:
+        link.connect(timeout_s=10.0)
+        info = link.request_message("VIDEO_STREAM_INFORMATION", CAMERA, timeout_s=3.0)
+        assert info is not None and info["uri"] == sitl.ports["camera_uri"]  # type: ignore[attr-defined]
+        assert link.request_message("VIDEO_STREAM_INFORMATION", 42, timeout_s=1.0) is None
+        with pytest.raises(CommandRejected):
+            link.request_message("MISSION_CURRENT", CAMERA, timeout_s=3.0)

@@ -11,6 +11,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from companion.link.manual_control import ManualControlMessage
 from companion.setpoints import VelocitySetpoint
@@ -166,6 +167,17 @@ class VehicleLink(ABC):
     @abstractmethod
     def request_rates(self, rates_hz: Mapping[str, float] | None = None) -> dict[str, str]:
         """Ask for telemetry rates (message name -> Hz); returns message name -> result name."""
+
+    @abstractmethod
+    def request_message(
+        self, message_name: str, component_id: int = 1, timeout_s: float = 2.0
+    ) -> dict[str, Any] | None:
+        """Ask one component of the vehicle's system for one message (MAV_CMD_REQUEST_MESSAGE).
+
+        Returns the message's fields by MAVLink name (strings decoded), or None when the
+        component does not answer within ``timeout_s`` (it may not exist: a camera that is not
+        there). Raises ``CommandRejected`` when it refuses, ValueError for an unknown name.
+        """
 
     @abstractmethod
     def link_alive(self) -> bool: ...

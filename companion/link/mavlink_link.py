@@ -13,6 +13,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -177,6 +178,62 @@ class MavlinkLink(VehicleLink):
                 log.warning("vehicle did not accept %s at %.1f Hz: %s", name, hz, results[name])
         return results
 
+    def request_message(
+        self, message_name: str, component_id: int = 1, timeout_s: float = 2.0
+    ) -> dict[str, Any] | None:
+        """REQUEST_MESSAGE to one component; its ACK and reply must come from that component.
+
+        Resent every ``command_timeout_s`` until the component ACKs; a reply without an ACK
+        counts too (some components skip it).
+        """
+        msg_id = message_id(message_name)
+        self._require_alive()
+        command = mavlink.MAV_CMD_REQUEST_MESSAGE
+        deadline = self._clock() + timeout_s
+        answers = self._io.waiters.add(
+            lambda m: m.get_srcComponent() == component_id
+            and (m.get_type() == message_name or (m.get_type() == "COMMAND_ACK" and m.command == command))
+        )  # fmt: skip
+        try:
+            acked, attempt = False, 0
+            while (remaining := deadline - self._clock()) > 0:
+                if not acked:
+                    self._send_command(command, [float(msg_id)], component_id, attempt)
+                    attempt += 1
+                    remaining = min(self.cfg.command_timeout_s, remaining)
+                answer = answers.get(remaining)
+                if answer is not None and answer.get_type() == message_name:
+                    return message_fields(answer)
+                acked = acked or (
+                    answer is not None and self._accepted(answer, message_name, component_id)
+                )
+        finally:
+            self._io.waiters.remove(answers)
+        log.info("REQUEST_MESSAGE(%s): no answer from component %d within %.1f s",
+                 message_name, component_id, timeout_s)  # fmt: skip
+        return None
+
+    def _send_command(
+        self, command: int, params: Sequence[float], component_id: int, attempt: int
+    ) -> None:
+        tsys, _ = self._target()
+        padded = (list(params) + [0.0] * 7)[:7]
+        confirmation = min(attempt, 255)
+        self._io.send(
+            self._io.mav.command_long_encode(tsys, component_id, command, confirmation, *padded)
+        )
+
+    @staticmethod
+    def _accepted(ack: Any, message_name: str, component_id: int) -> bool:
+        """True for ACCEPTED, False for IN_PROGRESS; CommandRejected for a refusal."""
+        if ack.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
+            return ack.result == mavlink.MAV_RESULT_ACCEPTED
+        raise CommandRejected(
+            f"REQUEST_MESSAGE({message_name}) to component {component_id}",
+            result_name(ack.result),
+            "the component does not offer this message",
+        )
+
     def default_rates_hz(self) -> dict[str, float]:
         """What the companion needs: fast attitude and position, slower landed state."""
         fast, slow = self.cfg.telemetry_rate_hz, self.cfg.status_rate_hz
@@ -300,6 +357,24 @@ class MavlinkLink(VehicleLink):
             f"{self.cfg.connection}; the link keeps listening and resumes by itself - hold, "
             "check the radio or cable, and retry when link_alive() is True"
         )
+
+
+def message_id(message_name: str) -> int:
+    """The MAVLink id of a common-dialect message name; ValueError with the fix otherwise."""
+    msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{message_name}", None)
+    if not isinstance(msg_id, int):
+        raise ValueError(
+            f"unknown MAVLink message {message_name!r}; use its name from common.xml, "
+            "e.g. VIDEO_STREAM_INFORMATION"
+        )
+    return msg_id
+
+
+def message_fields(msg: Any) -> dict[str, Any]:
+    """A received message's fields by MAVLink name (pymavlink decodes char arrays to str)."""
+    fields = dict(msg.to_dict())
+    fields.pop("mavpackettype", None)
+    return fields
 
 
 def _stamp(snapshot: VehicleSnapshot, echo_time_boot_ms: int | None) -> int:

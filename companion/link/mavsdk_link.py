@@ -33,6 +33,8 @@ from companion.link.base import (
     VehicleSnapshot,
 )
 from companion.link.manual_control import manual_control_from_fields
+from companion.link.mavlink_link import message_id
+from companion.link.mavlink_link import result_name as mav_result_name
 from companion.link.mavsdk_convert import (
     finite3,
     fold_flight_mode,
@@ -47,6 +49,7 @@ from companion.link.mavsdk_convert import (
 from companion.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
+MAV_CMD_REQUEST_MESSAGE = 512  # MAVLink common.xml
 
 
 class MavsdkLink(VehicleLink):
@@ -345,6 +348,57 @@ class MavsdkLink(VehicleLink):
                 results[name] = "TIMEOUT"
         return results
 
+    def request_message(
+        self, message_name: str, component_id: int = 1, timeout_s: float = 2.0
+    ) -> dict[str, Any] | None:
+        """REQUEST_MESSAGE through MAVSDK's MavlinkDirect plugin (it resends until ACKed)."""
+        msg_id = message_id(message_name)
+        self._plugins_checked()
+        request = self._request_message(message_name, msg_id, component_id, timeout_s)
+        try:
+            return self._runner.run(request, timeout_s + 2.0)  # type: ignore[union-attr]
+        except TimeoutError:
+            return None
+
+    async def _request_message(
+        self, message_name: str, msg_id: int, component_id: int, timeout_s: float
+    ) -> dict[str, Any] | None:
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+
+        direct = self._plugins.get("direct_requests")
+        if direct is None:
+            direct = self._plugins["direct_requests"] = MavlinkDirectAsync(self._system)
+        reply = asyncio.ensure_future(_first_from(direct, message_name, component_id))
+        await asyncio.sleep(0)  # let the subscription start before the request goes out
+        try:
+            ack = await self._send_request(direct, msg_id, component_id, timeout_s)
+            if ack is not None and ack not in ("ACCEPTED", "IN_PROGRESS"):
+                raise CommandRejected(f"REQUEST_MESSAGE({message_name}) to component {component_id}",
+                                      ack, "the component does not offer this message")  # fmt: skip
+            return await asyncio.wait_for(reply, timeout_s)
+        except TimeoutError:
+            return None
+        finally:
+            reply.cancel()
+
+    async def _send_request(
+        self, direct: Any, msg_id: int, component_id: int, timeout_s: float
+    ) -> str | None:
+        """COMMAND_LONG REQUEST_MESSAGE; the ACK's MAV_RESULT name, None if none came."""
+        from mavsdk.plugins.mavlink_direct import MavlinkDirectError, MavlinkMessage
+
+        snapshot = self._require_alive()
+        fields = {"target_system": snapshot.system_id, "target_component": component_id,
+                  "command": MAV_CMD_REQUEST_MESSAGE, "confirmation": 0, "param1": float(msg_id),
+                  **{f"param{i}": 0.0 for i in range(2, 8)}}  # fmt: skip
+        command = MavlinkMessage("COMMAND_LONG", self.cfg.source_system, self.cfg.source_component,
+                                 snapshot.system_id, component_id, json.dumps(fields))  # fmt: skip
+        try:
+            ack = await asyncio.wait_for(direct.send_command(command), timeout_s)
+        except (MavlinkDirectError, TimeoutError):
+            return None
+        return mav_result_name(int(json.loads(ack.fields_json).get("result", -1)))
+
     def _call(self, what: str, coro: Any) -> Any:
         """Run one MAVSDK request, translating its errors into companion.errors."""
         self._require_alive()
@@ -429,6 +483,15 @@ def _background(coro: Any) -> asyncio.Task[Any]:
 
     task.add_done_callback(report)
     return task
+
+
+async def _first_from(direct: Any, message_name: str, component_id: int) -> dict[str, Any]:
+    """The fields of the first ``message_name`` that ``component_id`` sends."""
+    async for message in direct.subscribe_message(message_name):
+        if message.component_id == component_id:
+            fields: dict[str, Any] = json.loads(message.fields_json)
+            return fields
+    raise LinkLost(f"MAVSDK ended the {message_name} subscription")
 
 
 def _check_echo(echo_time_boot_ms: int | None) -> None:
