@@ -236,7 +236,7 @@ class HumanDataset:
         self.obs_names = tuple(obs_names)
         self.path = None if path is None else Path(path)
         self._rows = _Rows(len(self.obs_names), chunk_rows)
-        self._published = DatasetView(self._rows.obs[:0], self._rows.actions[:0])
+        self._publish(0)
         self._cond = threading.Condition(threading.Lock())
         self.counts = {s: 0 for s in Source}
         self.last_episode = -1
@@ -246,6 +246,7 @@ class HumanDataset:
     # -- file ---------------------------------------------------------------------------
     def _open_file(self, p: Path) -> int:
         """Create with a header, or resume: keep good rows, cut a torn tail, then append."""
+        p.parent.mkdir(parents=True, exist_ok=True)
         if p.exists() and p.stat().st_size > 0:
             loaded = load_csv(p, self.obs_names)
             self.load_report = loaded.report

@@ -213,8 +213,11 @@ class BudgetedLearner:
         if self.updates_per_step < 1:
             raise ValueError("updates_per_step must be >= 1")
 
-    def on_control_step(self) -> PolicySnapshot:
-        """Train for this step's budget (if there is work) and return the snapshot to fly."""
+    def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot:
+        """Train for this step's budget (if there is work) and return the snapshot to fly.
+
+        ``tick_start_s`` is accepted for the runners' common signature and not needed here.
+        """
         if self.learner.has_work:
             self.learner.train_until_converged(budget=self.updates_per_step)
         return self.learner.latest_snapshot
@@ -262,9 +265,13 @@ class ControlTickGuard:
         self._ticks = 0
         self._last_tick_s: float | None = None
 
-    def tick(self) -> None:
-        """Called by the control loop once per tick (cheap: a lock and a notify)."""
-        now = time.perf_counter()
+    def tick(self, started_s: float | None = None) -> None:
+        """Called by the control loop once per tick (cheap: a lock and a notify).
+
+        ``started_s``: ``time.perf_counter()`` when the tick began, if this is called later in
+        the tick; the window protects the start of the next tick.
+        """
+        now = time.perf_counter() if started_s is None else started_s
         with self._cond:
             if self._last_tick_s is not None and not self._fixed_period:
                 interval = now - self._last_tick_s
@@ -328,9 +335,13 @@ class LearnerThread:
     def latest_snapshot(self) -> PolicySnapshot:
         return self.learner.latest_snapshot
 
-    def on_control_step(self) -> PolicySnapshot:
-        """Report a control tick and get the snapshot to fly now; never waits for training."""
-        self.guard.tick()
+    def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot:
+        """Report a control tick and get the snapshot to fly now; never waits for training.
+
+        Call it once per tick; when that is late in the tick, pass ``tick_start_s``
+        (``time.perf_counter()`` at the tick's start) so the guard protects the tick's start.
+        """
+        self.guard.tick(tick_start_s)
         return self.learner.latest_snapshot
 
     def start(self) -> None:

@@ -34,7 +34,7 @@ def _check_rows(obs: np.ndarray, actions: np.ndarray) -> None:
 
 
 def test_header_is_the_papers_columns(tmp_path: Path) -> None:
-    path = tmp_path / "d.csv"
+    path = tmp_path / "run" / "d.csv"  # the folder is made if missing
     HumanDataset(path).close()
     header = path.read_text().splitlines()[0].split(",")
     assert header[:4] == ["episode", "step", "time_s", "source"]

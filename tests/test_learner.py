@@ -305,3 +305,13 @@ def test_tick_guard_learns_the_period() -> None:
         guard.tick()
         time.sleep(0.02)
     assert guard.period_s is not None and 0.018 < guard.period_s < 0.04
+
+
+def test_tick_guard_protects_the_tick_start_when_told_it() -> None:
+    """A loop that reports its tick at the end passes the start; the window precedes the start."""
+    guard = ControlTickGuard(guard_s=0.02, period_s=0.1)
+    started = time.perf_counter()
+    time.sleep(0.05)  # the tick's work
+    guard.tick(started_s=started)
+    time.sleep(max(0.0, started + 0.09 - time.perf_counter()))  # 10 ms before the next start
+    assert guard.pause() > 0.015  # nobody reports: waits until 20 ms after the expected start
