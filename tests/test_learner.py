@@ -103,6 +103,24 @@ def test_budgeted_learner_runs_exactly_its_budget(rng: np.random.Generator) -> N
     assert isinstance(make_runner(Learner(LearnerConfig(), ds)), LearnerThread)
 
 
+def test_budgeted_runs_repeat_exactly_whatever_the_timing() -> None:
+    """Same seed and same samples per control step -> identical policies, fast or slow."""
+
+    def run(delay_s: float) -> PolicySnapshot:
+        data_rng = np.random.default_rng(5)
+        ds = HumanDataset(None)
+        runner = BudgetedLearner(Learner(LearnerConfig(seed=11), ds), updates_per_step=5)
+        for _ in range(12):
+            _grow(ds, data_rng, 3)
+            time.sleep(delay_s)
+            snap = runner.on_control_step()
+        return snap
+
+    fast, slow = run(0.0), run(0.01)
+    assert fast.version == slow.version == 60
+    assert all(np.array_equal(a, b) for a, b in zip(fast.weights, slow.weights, strict=True))
+
+
 def test_publishes_right_after_new_samples_and_every_few_updates(rng: np.random.Generator) -> None:
     ds = _dataset(rng, 50)
     learner = Learner(LearnerConfig(loss_threshold=1e-12, publish_every_updates=5), ds)
