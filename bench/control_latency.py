@@ -14,9 +14,9 @@ episode-start frames. The machine may be shared with other jobs; the load averag
 
 What decides the tail here (2 cores, shared): the step's own CPU time is about 0.5 ms (p99 about
 1 ms); the rest of a slow step is spent inside ``sendto``, because the setpoint wakes the SITL,
-which on the same core preempts the companion while it computes the next frame. ``--pin`` (SITL
-on other cores) or ``--sitl-nice 10`` shows the companion's latency without that; on a vehicle
-the autopilot has its own processor.
+which on the same core preempted the companion while it computed the next frame. So
+``start_sitl`` runs the SITL 10 nice steps below the companion (``--sitl-nice`` sets another
+value, ``--pin`` puts the SITL on other cores); on a vehicle the autopilot has its own processor.
 
     python bench/control_latency.py [--quick] [--steps N] [--pilot expert|none] [--seed S]
                                     [--pin] [--sitl-nice N] [--switch-interval-ms MS]
@@ -267,7 +267,7 @@ def main() -> None:
     ap.add_argument("--switch-interval-ms", type=float, default=None,
                     help="set sys.setswitchinterval (the GIL hand-over bound) first; default: Python's 5 ms")
     ap.add_argument("--pin", action="store_true", help="companion on CPU 0, SITL on the others")
-    ap.add_argument("--sitl-nice", type=int, default=0, help="niceness of the SITL process (0-19)")
+    ap.add_argument("--sitl-nice", type=int, default=0, help="niceness of the SITL process (0-19; 0 keeps start_sitl's +10)")
     args = ap.parse_args()
     if args.switch_interval_ms is not None:
         sys.setswitchinterval(args.switch_interval_ms / 1000.0)

@@ -97,9 +97,14 @@ def start_sitl(
     camera: bool = True,
     extra_args: list[str] | None = None,
     timeout_s: float = 30.0,
+    nice: int = 10,
 ) -> SitlProcess:
     """Start the SITL in another process on free loopback ports, sending MAVLink to
-    ``udp_remote_port``; returns once it reports READY."""
+    ``udp_remote_port``; returns once it reports READY.
+
+    The SITL runs ``nice`` steps below the companion: on one machine it would otherwise take the
+    companion's core while computing the next frame (a real autopilot has its own processor);
+    in lockstep it waits for the companion anyway, so this costs no throughput."""
     args = [sys.executable, "-m", "sitl", "--clock", clock, "--udp", f"0:{udp_remote_port}", "--tcp", "-1",
             "--camera-port", "0", "--control-port", "0"]
     if config is not None:
@@ -111,6 +116,7 @@ def start_sitl(
     args += extra_args or []
     env = dict(os.environ, OMP_NUM_THREADS="1")
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    _lower_priority(proc.pid, nice)
     deadline = time.monotonic() + timeout_s
     assert proc.stdout is not None
     while time.monotonic() < deadline:
@@ -122,6 +128,15 @@ def start_sitl(
             return SitlProcess(proc, json.loads(line[6:]))
     proc.kill()
     raise SimulatorError(f"the SITL did not report READY within {timeout_s} s")
+
+
+def _lower_priority(pid: int, nice: int) -> None:
+    if nice <= 0 or not hasattr(os, "setpriority"):
+        return
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, os.getpriority(os.PRIO_PROCESS, pid) + nice)
+    except OSError:
+        pass  # not permitted here: the SITL just competes for the CPU as before
 
 
 @contextmanager
