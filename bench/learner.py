@@ -155,9 +155,13 @@ def live_run(config: LearnerConfig, duration_s: float, rng: np.random.Generator)
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="short run (about 20 s)")
+    parser.add_argument("--control-guard-s", type=float, default=None,
+                        help="override control_guard_s (0 turns the tick guard off, to compare)")
     args = parser.parse_args()
     duration_s = 8.0 if args.quick else 60.0
     config = LearnerConfig()
+    if args.control_guard_s is not None:
+        config = config.model_copy(update={"control_guard_s": args.control_guard_s})
     torch.set_num_threads(config.torch_threads)
     rng = np.random.default_rng(0)
 
@@ -178,6 +182,7 @@ def main() -> None:
         "duration_s": duration_s,
         "torch_threads": config.torch_threads,
         "publish_every_updates": config.publish_every_updates,
+        "control_guard_s": config.control_guard_s,
         "learner_always_busy": True,
         "cpu_count": os.cpu_count(),
         "loadavg_1min": round(os.getloadavg()[0], 2),
