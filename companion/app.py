@@ -268,5 +268,5 @@ class _Frozen:
     def latest_snapshot(self) -> PolicySnapshot:
         return self._snapshot
 
-    def on_control_step(self) -> PolicySnapshot:
+    def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot:
         return self._snapshot

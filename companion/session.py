@@ -44,7 +44,7 @@ class PolicyRunner(Protocol):
     @property
     def error(self) -> BaseException | None: ...
 
-    def on_control_step(self) -> PolicySnapshot: ...
+    def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot: ...
 
 
 @dataclass(frozen=True)
@@ -122,6 +122,7 @@ class EpisodeRunner:
         self._frame_ms = -1
         self._ticker: Ticker | None = None
         self._warned_learner = False
+        self._tick_start_s: float | None = None
         self.step_latencies_s: list[float] = []
 
     # ----- frames ----------------------------------------------------------------------------
@@ -266,13 +267,13 @@ class EpisodeRunner:
                 outcome = outcome_now
                 break
             if self.p.runner is not None:
-                self.p.runner.on_control_step()
+                self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
             snap = self._next_snapshot()
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
                       t0_ms: int) -> tuple[str | None, int | None]:
-        t_start = time.perf_counter()
+        t_start = self._tick_start_s = time.perf_counter()
         try:
             obs = self.p.observer.observe(snap, self.p.lockstep)
             vector = obs.to_vector()

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import os
 import socket
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
+
+from tests.mav_client import MavTestClient
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -21,6 +24,14 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def client() -> Iterator[MavTestClient]:
+    """A raw pymavlink test client on a free loopback UDP port (the SITL sends there)."""
+    c = MavTestClient()
+    yield c
+    c.close()
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -131,7 +131,7 @@ class Runner:
         self.error = error
         self.steps = 0
 
-    def on_control_step(self):  # type: ignore[no-untyped-def]
+    def on_control_step(self, tick_start_s=None):  # type: ignore[no-untyped-def]
         self.steps += 1
         return self.latest_snapshot
 

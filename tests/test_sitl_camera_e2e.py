@@ -16,13 +16,6 @@ pytestmark = pytest.mark.e2e
 
 
 @pytest.fixture
-def client() -> Iterator[MavTestClient]:
-    c = MavTestClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
 def sitl(client: MavTestClient) -> Iterator[SitlProcess]:
     s = start_sitl(client.port, clock="lockstep", camera=True)
     yield s

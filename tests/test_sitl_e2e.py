@@ -22,13 +22,6 @@ LAND = (4 << 16) | (6 << 24)
 
 
 @pytest.fixture
-def client() -> Iterator[MavTestClient]:
-    c = MavTestClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
 def sitl_fast(client: MavTestClient) -> Iterator[SitlProcess]:
     """Real-time clock at 4x: MAVLink behaves as with a real vehicle, tests stay short."""
     sitl = start_sitl(client.port, clock="realtime", camera=False, extra_args=["--speed", "4"])
