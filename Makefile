@@ -30,6 +30,7 @@ bench: setup
 
 lint: setup
 	$(PY) -m ruff check companion sitl tests bench
+	$(PY) -m mypy companion sitl
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

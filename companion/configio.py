@@ -6,10 +6,10 @@ Only entry points call these; library code takes the typed models. A bad file or
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any, TypeVar
 
+import tomllib
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from companion.errors import ConfigError

@@ -221,7 +221,8 @@ class EpisodeRunner:
             if snap is None:
                 raise LinkError("lost the vehicle while flying to the start point")
             echo = self._frame_ms if self.p.lockstep else None
-            self.p.link.send_position_ned(*target, yaw, echo_time_boot_ms=echo)
+            north, east, down = (float(v) for v in target)
+            self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
             if i == 2 and snap.mode != "OFFBOARD":
                 self.p.link.set_mode("OFFBOARD")
             err = float(np.linalg.norm(np.asarray(snap.position_ned_m) - target))
@@ -248,8 +249,9 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
-        snap, notes = self._start(seed)
-        t0_ms = snap.time_boot_ms
+        first, notes = self._start(seed)
+        t0_ms = first.time_boot_ms
+        snap: VehicleSnapshot | None = first
         outcome, version, steps = "timeout", None, 0
         for step in range(self.p.cfg.max_steps):
             if snap is None:
