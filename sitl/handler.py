@@ -85,11 +85,11 @@ class MessageHandler:
         return HandleResult([])
 
     # ----- parameters ----------------------------------------------------------------------
-    def _param_value(self, index: int) -> Outgoing:
+    def _param_value(self, index: int, to_all: bool = False) -> Outgoing:
         p = self.v.params.by_index(index)
         assert p is not None
         msg = M.MAVLink_param_value_message(p.name.encode(), encode_value(p.value, p.kind), p.kind, len(self.v.params), index)
-        return Outgoing(AUTOPILOT, msg)
+        return Outgoing(AUTOPILOT, msg, to_sender_only=not to_all)
 
     def _on_param_request_list(self, m: mavlink.MAVLink_message) -> HandleResult:
         if not self._for_us(m.target_system, m.target_component):
@@ -112,7 +112,8 @@ class MessageHandler:
         if self.v.params.set(name, m.param_value, m.param_type) is None:
             self.v.say(M.MAV_SEVERITY_WARNING, f"Unknown parameter {name}")
             return HandleResult([])
-        return HandleResult([self._param_value(self.v.params.index_of(name))])
+        # a change is told to every link, as PX4 does, so several ground stations stay in step
+        return HandleResult([self._param_value(self.v.params.index_of(name), to_all=True)])
 
     # ----- commands ------------------------------------------------------------------------
     def _on_command_long(self, m: mavlink.MAVLink_message) -> HandleResult:

@@ -249,3 +249,14 @@ def test_set_ground_vehicle_moves_the_pad_in_truth(sitl) -> None:
             ctl.request("set_ground_vehicle", velocity_ne_m_s=[100.0, 0.0])
     finally:
         ctl.close()
+
+
+def test_a_parameter_change_is_told_to_every_client(sitl, gcs: TcpGroundStation) -> None:
+    _, offboard = sitl
+    for client in (gcs, offboard):
+        client.wait_for(autopilot_heartbeat, 5.0)
+        hello(client)
+    offboard.send(M.MAVLink_param_set_message(1, 1, b"MPC_LAND_SPEED", 0.9, M.MAV_PARAM_TYPE_REAL32))
+    for client in (offboard, gcs):
+        pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MPC_LAND_SPEED", 5.0)
+        assert pv.param_value == pytest.approx(0.9)
