@@ -134,7 +134,7 @@ class FixedPolicy:
     def latest_snapshot(self) -> Any:
         return self._snapshot
 
-    def on_control_step(self) -> Any:
+    def on_control_step(self, tick_start_s: float | None = None) -> Any:
         return self._snapshot
 
 
