@@ -182,6 +182,11 @@ class FlightController:
         self._g = _Gains.from_config(cfg, dt_s)
         self.reset()
 
+    def configure(self, cfg: AutopilotConfig) -> None:
+        """New limits and gains (a parameter changed in flight); integrators are kept."""
+        self.cfg = cfg
+        self._g = _Gains.from_config(cfg, self.dt_s)
+
     def reset(self) -> None:
         """Forget integrators and filter memory (on arming, mode changes, resets)."""
         self._vel_int = [0.0, 0.0, 0.0]

@@ -109,7 +109,7 @@ class MessageHandler:
         if not self._for_us(m.target_system, m.target_component):
             return HandleResult([])
         name = _param_name(m.param_id)
-        if self.v.params.set(name, m.param_value, m.param_type) is None:
+        if not self.v.set_param(name, m.param_value, m.param_type):
             self.v.say(M.MAV_SEVERITY_WARNING, f"Unknown parameter {name}")
             return HandleResult([])
         # a change is told to every link, as PX4 does, so several ground stations stay in step

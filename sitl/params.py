@@ -41,23 +41,61 @@ def decode_value(wire: float, kind: int) -> float:
     return float(wire)
 
 
+@dataclass(frozen=True)
+class Binding:
+    """A PX4 parameter that is a field of AutopilotConfig (``scale``: config unit -> PX4 unit)."""
+
+    name: str
+    field: str
+    minimum: float
+    maximum: float
+    scale: float = 1.0
+
+
+DEG = math.degrees(1.0)
+BINDINGS: tuple[Binding, ...] = (
+    Binding("MPC_XY_VEL_MAX", "max_speed_xy_m_s", 0.1, 20.0),
+    Binding("MPC_Z_VEL_MAX_UP", "max_speed_up_m_s", 0.1, 8.0),
+    Binding("MPC_Z_VEL_MAX_DN", "max_speed_down_m_s", 0.1, 4.0),
+    Binding("MPC_TILTMAX_AIR", "max_tilt_rad", 5.0, 65.0, DEG),
+    Binding("MPC_MAN_Y_MAX", "max_yaw_rate_rad_s", 1.0, 400.0, DEG),
+    Binding("MPC_LAND_SPEED", "land_speed_m_s", 0.1, 3.0),
+    Binding("MIS_TAKEOFF_ALT", "takeoff_alt_m", 0.5, 100.0),
+    Binding("COM_OF_LOSS_T", "offboard_loss_hold_s", 0.05, 60.0),
+    Binding("COM_OBL_LAND_T", "offboard_loss_land_s", 0.1, 600.0),
+    Binding("MPC_XY_P", "pos_p_xy", 0.0, 5.0),
+    Binding("MPC_Z_P", "pos_p_z", 0.0, 5.0),
+    Binding("MPC_XY_VEL_P_ACC", "vel_p_xy", 0.0, 20.0),
+    Binding("MPC_XY_VEL_I_ACC", "vel_i_xy", 0.0, 20.0),
+    Binding("MPC_Z_VEL_P_ACC", "vel_p_z", 0.0, 20.0),
+    Binding("MPC_Z_VEL_I_ACC", "vel_i_z", 0.0, 20.0),
+    Binding("MC_ROLL_P", "att_p_rp", 0.0, 20.0),
+    Binding("MC_YAW_P", "att_p_yaw", 0.0, 10.0),
+    Binding("MC_ROLLRATE_P", "rate_p_rp", 0.0, 1.0),
+    Binding("MC_ROLLRATE_I", "rate_i_rp", 0.0, 2.0),
+    Binding("MC_ROLLRATE_D", "rate_d_rp", 0.0, 0.1),
+    Binding("MC_YAWRATE_P", "rate_p_yaw", 0.0, 2.0),
+    Binding("MC_YAWRATE_I", "rate_i_yaw", 0.0, 2.0),
+    Binding("MPC_THR_HOVER", "hover_throttle", 0.1, 0.8),
+)
+BINDING_BY_NAME = {b.name: b for b in BINDINGS}
+
+
 def autopilot_params(cfg: AutopilotConfig) -> list[Param]:
-    """PX4-named parameters for the limits and failsafes the SITL's autopilot honours."""
-    return [
-        Param("MPC_XY_VEL_MAX", cfg.max_speed_xy_m_s, REAL32, 0.1, 20.0),
-        Param("MPC_Z_VEL_MAX_UP", cfg.max_speed_up_m_s, REAL32, 0.1, 8.0),
-        Param("MPC_Z_VEL_MAX_DN", cfg.max_speed_down_m_s, REAL32, 0.1, 4.0),
-        Param("MPC_TILTMAX_AIR", math.degrees(cfg.max_tilt_rad), REAL32, 5.0, 65.0),
-        Param("MPC_MAN_Y_MAX", math.degrees(cfg.max_yaw_rate_rad_s), REAL32, 1.0, 400.0),
-        Param("MPC_LAND_SPEED", cfg.land_speed_m_s, REAL32, 0.1, 3.0),
-        Param("MIS_TAKEOFF_ALT", cfg.takeoff_alt_m, REAL32, 0.5, 100.0),
-        Param("COM_OF_LOSS_T", cfg.offboard_loss_hold_s, REAL32, 0.05, 60.0),
-        Param("COM_OBL_LAND_T", cfg.offboard_loss_land_s, REAL32, 0.0, 600.0),
+    """PX4-named parameters for the limits, gains and failsafes the SITL's autopilot honours."""
+    bound = [Param(b.name, getattr(cfg, b.field) * b.scale, REAL32, b.minimum, b.maximum) for b in BINDINGS]
+    return bound + [
         Param("COM_DISARM_LAND", 2.0, REAL32, -1.0, 20.0),
         Param("MAV_SYS_ID", 1, INT32, 1, 255),
         Param("MAV_TYPE", mavlink.MAV_TYPE_QUADROTOR, INT32, 0, 50),
         Param("SYS_AUTOSTART", 4001, INT32, 0, 9_999_999),
     ]
+
+
+def apply_to_config(cfg: AutopilotConfig, store: ParamStore) -> AutopilotConfig:
+    """The autopilot config with every bound parameter's current value."""
+    update = {b.field: store.get(b.name) / b.scale for b in BINDINGS}
+    return cfg.model_copy(update=update)
 
 
 class ParamStore:

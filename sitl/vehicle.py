@@ -19,7 +19,7 @@ from sitl.control import FlightController, Setpoint
 from sitl.dynamics import Dynamics, VehicleState
 from sitl.modes import Mode, refusal
 from sitl.offboard import SetpointRejected, TargetFields, to_setpoint
-from sitl.params import ParamStore, autopilot_params
+from sitl.params import BINDING_BY_NAME, ParamStore, apply_to_config, autopilot_params
 from sitl.world import Touchdown, World
 
 NAN = math.nan
@@ -111,6 +111,14 @@ class SimVehicle:
 
     def setpoints_fresh(self) -> bool:
         return self.time_s - self._last_offboard_s <= self.params.get("COM_OF_LOSS_T")
+
+    def set_param(self, name: str, wire_value: float, kind: int | None = None) -> bool:
+        """PARAM_SET: store (clamped) and, for a limit or gain, fly with it from now on."""
+        if self.params.set(name, wire_value, kind) is None:
+            return False
+        if name in BINDING_BY_NAME:
+            self.controller.configure(apply_to_config(self.controller.cfg, self.params))
+        return True
 
     def say(self, severity: int, text: str) -> None:
         self.events.append((severity, text[:50]))

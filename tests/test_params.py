@@ -2,6 +2,8 @@
 
 import math
 
+import pytest
+
 from sitl.config import AutopilotConfig
 from sitl.params import INT32, REAL32, ParamStore, autopilot_params, decode_value, encode_value
 
@@ -32,3 +34,24 @@ def test_integer_param_set_bytewise() -> None:
     store = ParamStore(autopilot_params(AutopilotConfig()))
     store.set("MAV_SYS_ID", encode_value(7, INT32), INT32)
     assert store.get("MAV_SYS_ID") == 7
+
+
+def test_every_bound_parameter_starts_at_its_config_value() -> None:
+    from sitl.params import BINDINGS, apply_to_config
+
+    cfg = AutopilotConfig()
+    store = ParamStore(autopilot_params(cfg))
+    assert len(BINDINGS) >= 20  # limits, failsafes and the cascade's gains
+    assert apply_to_config(cfg, store) == cfg
+    assert store.get("MPC_TILTMAX_AIR") == pytest.approx(math.degrees(cfg.max_tilt_rad))
+
+
+def test_a_gain_set_by_parameter_reaches_the_config() -> None:
+    from sitl.params import apply_to_config
+
+    cfg = AutopilotConfig()
+    store = ParamStore(autopilot_params(cfg))
+    store.set("MPC_XY_VEL_P_ACC", 2.0)
+    store.set("MPC_TILTMAX_AIR", 30.0)
+    new = apply_to_config(cfg, store)
+    assert new.vel_p_xy == 2.0 and new.max_tilt_rad == pytest.approx(math.radians(30.0))

@@ -146,3 +146,15 @@ def test_an_episode_does_not_depend_on_the_episodes_before_it() -> None:
     used = SimVehicle(SitlConfig())
     fly(used, 7)
     assert fly(used, 5) == fresh  # bit for bit
+
+
+def test_a_speed_limit_set_by_parameter_is_flown_at_once(vehicle: SimVehicle) -> None:
+    vehicle.reset_episode(seed=6)
+    assert vehicle.set_param("MPC_XY_VEL_MAX", 1.0)
+    fast = body_velocity(forward=4.0)
+    vehicle.offboard_setpoint(fast)
+    vehicle.request_mode(Mode.OFFBOARD)
+    run_s(vehicle, 4.0, lambda v: v.offboard_setpoint(fast))
+    assert vehicle.state.velocity_ned_m_s[0] == pytest.approx(1.0, abs=0.1)
+    assert vehicle.controller.cfg.max_speed_xy_m_s == 1.0
+    assert not vehicle.set_param("NO_SUCH_PARAM", 1.0)
