@@ -22,7 +22,7 @@ from companion.arbiter import Arbiter, Phase
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import SessionConfig
 from companion.dataset import HumanDataset, Sample, Source
-from companion.errors import ColError, LinkError
+from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.observer import Observer
@@ -130,7 +130,10 @@ class EpisodeRunner:
         """The next control step's telemetry, or None if the link is gone."""
         link = self.p.link
         if self.p.lockstep:
-            snap = link.wait_frame(self._frame_ms, timeout_s=max(2.0, 4 * self.period_s))
+            try:
+                snap = link.wait_frame(self._frame_ms, timeout_s=max(2.0, 4 * self.period_s))
+            except LinkLost:  # the link's way of saying "silent": recover like in real time
+                return None
             if snap is not None:
                 self._frame_ms = int(snap.frame_time_boot_ms or snap.time_boot_ms)
             return snap

@@ -13,6 +13,7 @@ from companion.arbiter import Phase
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import CompanionConfig
 from companion.dataset import HumanDataset, Source
+from companion.errors import LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.observation import Observation
@@ -223,6 +224,24 @@ def test_link_loss_stops_streaming_then_resumes(monkeypatch: pytest.MonkeyPatch)
     record = runner.run(0, Phase.AUTONOMOUS, seed=1)
     assert sent_before, "the loss was noticed"
     assert link.modes.count("OFFBOARD") == 2  # handed over again after the link came back
+    assert record.steps == 12 and record.outcome == "timeout"
+
+
+def test_link_loss_raised_by_the_link_is_recovered_not_fatal(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Real links raise LinkLost from wait_frame when the vehicle falls silent (VehicleLink's contract)."""
+    link = KinematicLink((0.0, 0.0, -5.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.session.time.sleep", lambda s: None)
+    original = link.wait_frame
+
+    def lossy_wait_frame(after: int, timeout_s: float):  # type: ignore[no-untyped-def]
+        if link.frame == 5:
+            link.frame += 1
+            raise LinkLost("nothing heard from the vehicle")
+        return original(after, timeout_s)
+
+    link.wait_frame = lossy_wait_frame  # type: ignore[method-assign]
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
     assert record.steps == 12 and record.outcome == "timeout"
 
 
