@@ -6,6 +6,7 @@ import json
 import logging
 import math
 import os
+import signal
 import statistics
 from pathlib import Path
 from typing import Annotated
@@ -28,6 +29,18 @@ VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="log what happ
 def _setup(verbose: bool) -> None:
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    signal.signal(signal.SIGTERM, _terminate)
+
+
+def _terminate(signum: int, _frame: object) -> None:
+    """SIGTERM unwinds like Ctrl-C, so the SITL we started stops and open files are closed."""
+    raise KeyboardInterrupt
+
+
+def _interrupted(where: Path | None) -> typer.Exit:
+    folder = f" in {where}" if where is not None else " in the run folder"
+    typer.echo(f"interrupted: the dataset and the checkpoints of finished episodes are kept{folder}", err=True)
+    return typer.Exit(130)
 
 
 def _load(config: Path | None):  # type: ignore[no-untyped-def]
@@ -101,6 +114,8 @@ def fly(
         result = _run(cfg, opts, f"fly {condition}")
     except ColError as exc:
         raise _fail(exc) from None
+    except KeyboardInterrupt:
+        raise _interrupted(run_dir) from None
     for r in result.records:
         typer.echo(f"episode {r.episode:3d} {r.phase:13s} {r.outcome:9s} success={r.success} "
                    f"steps={r.steps} human_samples={r.human_samples} interventions={r.interventions}"
@@ -147,6 +162,8 @@ def eval_cmd(
         report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config)
     except ColError as exc:
         raise _fail(exc) from None
+    except KeyboardInterrupt:
+        raise _interrupted(run_dir) from None
     typer.echo(f"success {report['successes']}/{report['episodes']} = {report['success_rate']:.0%} "
                f"(95% CI {report['ci95'][0]:.0%}-{report['ci95'][1]:.0%}); median touchdown distance "
                f"{report['touchdown_distance_m_median']} m")
@@ -185,6 +202,8 @@ def demo(
         report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config)
     except ColError as exc:
         raise _fail(exc) from None
+    except KeyboardInterrupt:
+        raise _interrupted(run_dir) from None
     for r in trained.records:
         typer.echo(f"  train episode {r.episode} {r.phase:13s} {r.outcome:9s} success={r.success} human_samples={r.human_samples} interventions={r.interventions}")
     typer.echo(f"learned from {trained.dataset_size} human samples "

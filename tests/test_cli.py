@@ -1,0 +1,68 @@
+"""The ``col`` command line as a person meets it: stopping it, and what it leaves behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from companion.dataset import load_csv
+
+pytestmark = pytest.mark.e2e
+
+
+def col_command() -> list[str]:
+    script = Path(sys.executable).with_name("col")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "companion.cli"]
+
+
+def children_of(pid: int) -> list[int]:
+    """Direct child processes of ``pid`` (Linux /proc)."""
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        text = (task / "children").read_text() if (task / "children").exists() else ""
+        kids += [int(k) for k in text.split()]
+    return kids
+
+
+def wait_until(predicate, timeout_s: float) -> bool:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
+def test_sigterm_stops_col_fly_cleanly_with_its_sitl_and_keeps_the_data(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    args = [*col_command(), "fly", "--pilot", "expert", "--episodes", "50", "--no-learn", "--run-dir", str(run_dir)]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, OMP_NUM_THREADS="1"))
+    sitl: list[int] = []
+    try:
+        assert wait_until(lambda: (run_dir / "checkpoints" / "episode_000.npz").exists(), 60.0), "no episode finished"
+        sitl = children_of(proc.pid)
+        assert sitl, "col fly runs the SITL as its child"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=20)
+        sitl_gone = wait_until(lambda: not any(Path(f"/proc/{pid}").exists() for pid in sitl), 10.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for pid in sitl:  # only if the test failed: do not leave an orphan SITL running
+            if Path(f"/proc/{pid}").exists():
+                os.kill(pid, signal.SIGKILL)
+    assert proc.returncode == 130, err[-2000:]
+    assert "interrupted" in err and str(run_dir) in err
+    assert sitl_gone, "the SITL outlived col fly"
+    episodes = len((run_dir / "episodes.jsonl").read_text().splitlines())
+    assert episodes >= 1 and len(list((run_dir / "checkpoints").glob("episode_*.npz"))) >= episodes
+    loaded = load_csv(run_dir / "human.csv")
+    assert loaded.report.rows > 0 and loaded.report.skipped_rows == 0  # closed cleanly: nothing torn
