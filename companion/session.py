@@ -276,6 +276,24 @@ class EpisodeRunner:
             snap = self._next_snapshot()
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
+    # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
+    def begin(self, seed: int | None) -> VehicleSnapshot:
+        """Start an episode as :meth:`run` does (reset or fly to the start, then OFFBOARD) and
+        return its first frame; the caller then answers each frame with :meth:`answer`."""
+        self.arbiter.reset()
+        self.p.human.reset()
+        self.p.limiter.reset()
+        return self._start(seed)[0]
+
+    def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
+        """Answer the current frame with ``command`` (None: hold), mapped and limited as in
+        :meth:`run`; returns the next frame's telemetry, or None if the link is gone."""
+        if command is None:
+            self._send(HOLD)
+        else:
+            self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s))
+        return self._next_snapshot()
+
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
                       t0_ms: int) -> tuple[str | None, int | None]:
         t_start = self._tick_start_s = time.perf_counter()
