@@ -198,10 +198,11 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     synthetic = opts.pilot in ("expert", "none")
     lockstep = opts.lockstep if opts.lockstep is not None else (synthetic and not opts.connection)
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
+    initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "checkpoints").mkdir(exist_ok=True)
     result = RunResult(run_dir)
-    initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None
+    first = opts.first_episode or next_episode(run_dir)
     with contextlib.ExitStack() as stack:
         connection, sitl = stack.enter_context(vehicle_connection(cfg, opts, lockstep))
         link_cfg = cfg.link.model_copy(update={"connection": connection})
@@ -232,10 +233,10 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
         )
         episode_runner = EpisodeRunner(parts)
-        seed0 = cfg.session.seed if opts.seed is None else opts.seed
+        seed0 = cfg.session.seed + (first - opts.first_episode) if opts.seed is None else opts.seed
         with (run_dir / "episodes.jsonl").open("a") as log_file:
             for k, phase in enumerate(phases):
-                i = opts.first_episode + k
+                i = first + k
                 record = episode_runner.run(i, phase, seed0 + k)
                 log_file.write(json.dumps(record.to_json_dict()) + "\n")
                 log_file.flush()
@@ -255,6 +256,14 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     return result
+
+
+def next_episode(run_dir: Path) -> int:
+    """The number after the last episode checkpointed in ``run_dir`` (0 for a new folder), so that
+    a resumed run folder keeps its earlier checkpoints and starts from new seeds."""
+    numbers = [int(p.stem.removeprefix("episode_")) for p in (run_dir / "checkpoints").glob("episode_*.npz")
+               if p.stem.removeprefix("episode_").isdigit()]
+    return max(numbers, default=-1) + 1
 
 
 class _Frozen:

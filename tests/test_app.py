@@ -1,0 +1,42 @@
+"""Wiring of a run folder by ``run_episodes``: what a second run in the same folder does, and
+what a refused start leaves behind."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from companion.app import RunOptions, next_episode, run_episodes
+from companion.config import CompanionConfig
+from companion.dataset import load_csv
+from companion.errors import CheckpointError
+
+
+def test_a_missing_checkpoint_fails_before_making_the_run_folder(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    opts = RunOptions(pilot="none", condition="eval", episodes=1, checkpoint=tmp_path / "nope.npz", run_dir=run_dir)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        run_episodes(CompanionConfig(), opts)
+    assert not run_dir.exists()
+
+
+def test_next_episode_follows_the_checkpoints(tmp_path: Path) -> None:
+    assert next_episode(tmp_path) == 0
+    (tmp_path / "checkpoints").mkdir()
+    for name in ("episode_000.npz", "episode_004.npz", "episode_x.npz", ".episode_007.npz.1.tmp"):
+        (tmp_path / "checkpoints" / name).write_bytes(b"")
+    assert next_episode(tmp_path) == 5
+
+
+@pytest.mark.e2e
+def test_a_resumed_run_folder_numbers_episodes_on_and_keeps_earlier_checkpoints(tmp_path: Path) -> None:
+    base = CompanionConfig()
+    cfg = base.model_copy(update={"session": base.session.model_copy(update={"max_steps": 5})})  # short episodes
+    for _ in range(2):
+        run_episodes(cfg, RunOptions(pilot="expert", condition="demo", episodes=1, run_dir=tmp_path, learn=False))
+    records = [json.loads(line) for line in (tmp_path / "episodes.jsonl").read_text().splitlines()]
+    assert [(r["episode"], r["seed"]) for r in records] == [(0, 0), (1, 1)]  # new episode, new start
+    assert sorted(p.name for p in (tmp_path / "checkpoints").glob("*.npz")) == ["episode_000.npz", "episode_001.npz"]
+    assert sorted(set(load_csv(tmp_path / "human.csv").episode.tolist())) == [0, 1]
