@@ -81,7 +81,11 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink) -> HumanInpu
         return GamepadInput(cfg.pilot)
     if kind == "none":
         return NoHuman()
-    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad or none")
+    if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2"
+        from companion.experiment.pilots import profile_named, synthetic_pilot
+
+        return synthetic_pilot(profile_named(kind.partition(":")[2]), cfg.pilot, cfg.session.seed)
+    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none or synthetic:P1..P4")
 
 
 def free_udp_port() -> int:

@@ -1,0 +1,1 @@
+"""The paper's experiment: synthetic participants, the grid of trials, reports (docs/experiment.md)."""
