@@ -216,5 +216,37 @@ def demo(
                            "success_rate": report["success_rate"], "final_checkpoint": str(last)}))
 
 
+@app.command()
+def ppo(
+    actions: Annotated[int, typer.Option("--actions", min=2, max=4, help="2: pitch, roll (constant descent); 3: + throttle; 4: + yaw")] = 2,
+    episodes: Annotated[int, typer.Option(min=1, help="training episodes (the paper: 1000)")] = 1000,
+    eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="held-out starts the final model flies (seeds 100000 + i, as col eval)")] = 100,
+    out: Annotated[Path | None, typer.Option("--out", help="folder for model.zip, train_episodes.jsonl, results.json (default: runs/<time>-ppo<actions>)")] = None,
+    seed: Annotated[int, typer.Option(help="PPO's seed; training episode i starts from seed + i")] = 0,
+    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps")] = 2048,
+    config: ConfigOpt = None,
+    verbose: VerboseOpt = False,
+) -> None:
+    """The paper's PPO baseline: sparse success reward, trained in the lockstep SITL, then evaluated."""
+    _setup(verbose)
+    from companion.app import default_run_dir
+    from companion.experiment.ppo import PpoSettings, run_ppo
+
+    try:
+        cfg = _load(config)
+        settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps)
+        bar = tqdm(total=episodes, desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
+        try:
+            results = run_ppo(settings, out or default_run_dir(cfg, f"ppo{actions}"), cfg, config, lambda r: bar.update(1))
+        finally:
+            bar.close()
+    except ColError as exc:
+        raise _fail(exc) from None
+    ev = results["eval"]
+    typer.echo(f"trained {results['train']['episodes']} episodes in {results['train']['wall_s']:.0f} s; final policy "
+               f"{ev['successes']}/{ev['episodes']} = {ev['success_rate']:.0%} (95% CI {ev['ci95'][0]:.0%}-{ev['ci95'][1]:.0%})")
+    typer.echo(json.dumps(ev))
+
+
 if __name__ == "__main__":
     app()
