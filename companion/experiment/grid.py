@@ -1,0 +1,136 @@
+"""The experiment grid: participants x conditions x interactions x seeds, as trials.
+
+A :class:`Trial` names one cell of the grid; with the :class:`ExperimentConfig` and the
+companion's config it fully determines a result (see :mod:`companion.experiment.runner`).
+The ``[experiment]`` table of a TOML file (``configs/experiment.toml``) becomes an
+:class:`ExperimentConfig`; its ``[companion.*]`` and ``[sitl.*]`` tables configure the
+companion and the SITL as usual.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, field_validator
+
+from companion.config import CompanionConfig, load_companion_config
+from companion.configio import Section, build, read_toml, section
+from companion.errors import ConfigError
+from companion.experiment.pilots import PROFILES
+
+TrainCondition = Literal["demo", "int", "col"]
+TRAIN_CONDITIONS: tuple[TrainCondition, ...] = ("demo", "int", "col")
+START_SEEDS_PER_REPLICATE = 1000
+"""Training starts of replicate ``s`` use seeds ``1000 s, 1000 s + 1, ...`` (never the
+held-out evaluation starts, which begin at ``eval_seed``)."""
+
+
+class ExperimentConfig(Section):
+    """[experiment]: the grid and how every trial's final policy is evaluated."""
+
+    participants: tuple[str, ...] = ("P1", "P2", "P3", "P4")
+    conditions: tuple[TrainCondition, ...] = TRAIN_CONDITIONS
+    interactions: tuple[int, ...] = (4, 8, 12, 20)
+    seeds: tuple[int, ...] = Field((0,), description="replicates; each gives other training starts and noise")
+    eval_runs: int = Field(100, ge=1, description="held-out starts flown by every final policy")
+    eval_seed: int = Field(100_000, ge=0, description="seed of the first held-out start")
+    updates_per_step: int = Field(40, ge=1, description="budgeted learner: updates per control step")
+
+    @field_validator("participants")
+    @classmethod
+    def _known_participants(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = [p for p in value if p not in PROFILES]
+        if unknown or not value:
+            raise ValueError(f"participants must be some of {list(PROFILES)}, got {list(value)}")
+        return value
+
+    @field_validator("interactions")
+    @classmethod
+    def _positive_interactions(cls, value: tuple[int, ...]) -> tuple[int, ...]:
+        if not value or any(n < 1 for n in value):
+            raise ValueError(f"interactions must be episode counts >= 1, got {list(value)}")
+        return value
+
+    @field_validator("seeds")
+    @classmethod
+    def _replicate_seeds(cls, value: tuple[int, ...]) -> tuple[int, ...]:
+        if not value or any(not 0 <= s < 100 for s in value) or len(set(value)) != len(value):
+            raise ValueError(f"seeds must be distinct integers in [0, 100), got {list(value)}")
+        return value
+
+    @field_validator("conditions")
+    @classmethod
+    def _some_conditions(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        if not value or len(set(value)) != len(value):
+            raise ValueError(f"conditions must be distinct, some of {list(TRAIN_CONDITIONS)}")
+        return value
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One cell of the grid: who trains, how, for how many episodes, which replicate."""
+
+    participant: str
+    condition: TrainCondition
+    interactions: int
+    seed: int
+
+    def __post_init__(self) -> None:
+        if self.participant not in PROFILES:
+            raise ConfigError(f"unknown participant {self.participant!r}; use one of {list(PROFILES)}")
+        if self.condition not in TRAIN_CONDITIONS:
+            raise ConfigError(f"unknown condition {self.condition!r}; use one of {list(TRAIN_CONDITIONS)}")
+        if self.interactions < 1 or self.seed < 0:
+            raise ConfigError(f"a trial needs interactions >= 1 and seed >= 0, got {self}")
+
+    @property
+    def key(self) -> str:
+        """A stable name, used for the trial's folder and to find it in the results file."""
+        return f"{self.participant}-{self.condition}-{self.interactions:02d}-s{self.seed}"
+
+    @property
+    def start_seed(self) -> int:
+        """Seed of the trial's first training start (episode k uses start_seed + k)."""
+        return START_SEEDS_PER_REPLICATE * self.seed
+
+
+def expand(exp: ExperimentConfig) -> list[Trial]:
+    """Every trial of the grid, longest first (so a pool finishes with short ones)."""
+    cells = itertools.product(exp.participants, exp.conditions, exp.interactions, exp.seeds)
+    trials = [Trial(p, c, n, s) for p, c, n, s in cells]
+    return sorted(trials, key=lambda t: -t.interactions)
+
+
+@dataclass(frozen=True)
+class ExperimentSetup:
+    """Everything a trial depends on besides its :class:`Trial`: picklable, for worker processes."""
+
+    exp: ExperimentConfig
+    companion: CompanionConfig
+    config_path: Path | None = None
+    """The file whose ``[sitl]`` tables configure every trial's SITL (None: defaults)."""
+    sitl_tables: str = "{}"
+    """Those tables as JSON, so that the fingerprint changes with them."""
+
+    def fingerprint(self) -> str:
+        """What makes results comparable: evaluation, companion and SITL settings (not the
+        grid's extent, so that a grown grid reuses the trials it already ran)."""
+        exp = self.exp
+        settings = {"eval_runs": exp.eval_runs, "eval_seed": exp.eval_seed,
+                    "updates_per_step": exp.updates_per_step,
+                    "companion": self.companion.model_dump(mode="json"), "sitl": self.sitl_tables}
+        blob = json.dumps(settings, sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def load_experiment(path: str | Path) -> ExperimentSetup:
+    """An experiment file: ``[experiment]``, and ``[companion]``/``[sitl]`` tables as usual."""
+    data = read_toml(path)
+    exp = build(ExperimentConfig, section(data, "experiment"), f"[experiment] in {path}")
+    sitl_tables = json.dumps(section(data, "sitl"), sort_keys=True)
+    return ExperimentSetup(exp, load_companion_config(path), Path(path), sitl_tables)
