@@ -217,6 +217,36 @@ def demo(
 
 
 @app.command()
+def experiment(
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="experiment TOML: the [experiment] grid plus [companion]/[sitl] tables (default: configs/experiment.toml)")] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="trials side by side, each with its own SITL (default: the number of CPUs)")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="results folder; run again with the same folder to resume (default: runs/<config name>)")] = None,
+    quick: Annotated[bool, typer.Option("--quick", help="a smoke run: configs/experiment_quick.toml unless --config is given")] = False,
+    verbose: VerboseOpt = False,
+) -> None:
+    """The paper's experiment with synthetic participants: every trial of the grid, then a
+    report (Markdown table beside the paper's numbers, PNG plots) in the results folder."""
+    _setup(verbose)
+    from companion.experiment.grid import load_experiment
+    from companion.experiment.report import write_report
+    from companion.experiment.runner import run_grid
+
+    path = config or Path("configs/experiment_quick.toml" if quick else "configs/experiment.toml")
+    out_dir = out or Path("runs") / path.stem
+    try:
+        setup = load_experiment(path)
+        results = run_grid(setup, out_dir, workers or os.cpu_count() or 1)
+        report = write_report(results, out_dir)
+    except ColError as exc:
+        raise _fail(exc) from None
+    except KeyboardInterrupt:
+        typer.echo(f"interrupted: finished trials are kept in {out_dir / 'results.jsonl'}; run again to resume", err=True)
+        raise typer.Exit(130) from None
+    typer.echo(report.read_text())
+    typer.echo(json.dumps({"trials": len(results), "report": str(report), "results": str(out_dir / "results.jsonl")}))
+
+
+@app.command()
 def ppo(
     actions: Annotated[int, typer.Option("--actions", min=2, max=4, help="2: pitch, roll (constant descent); 3: + throttle; 4: + yaw")] = 2,
     episodes: Annotated[int, typer.Option(min=1, help="training episodes (the paper: 1000)")] = 1000,
