@@ -267,29 +267,41 @@ def test_readers_never_see_a_half_updated_snapshot(rng: np.random.Generator) -> 
     assert learner.updates > 50, "the learner barely trained: the stress test proved nothing"
 
 
+def _control_loop(ds: HumanDataset, rng: np.random.Generator, snapshot_of, ticks: int) -> tuple[np.ndarray, list[float]]:  # type: ignore[no-untyped-def]
+    """A 10.5 Hz loop that flies snapshots and records a sample per tick: period jitter, work."""
+    period_s = 1 / 10.5
+    stamps, work_ms, next_t = [], [], time.perf_counter()
+    for _ in range(ticks):
+        next_t += period_s
+        time.sleep(max(0.0, next_t - time.perf_counter()))
+        stamps.append(time.perf_counter())
+        snapshot_of().act(np.zeros(15, np.float32))
+        _grow(ds, rng, 1)
+        work_ms.append((time.perf_counter() - stamps[-1]) * 1e3)
+    return np.abs(np.diff(stamps) - period_s) * 1e3, work_ms
+
+
 def test_control_period_unaffected_by_a_busy_learner(rng: np.random.Generator) -> None:
-    """A 10.5 Hz loop that flies snapshots and records samples keeps its period."""
+    """The loop keeps its period while the learner trains flat out.
+
+    Compared with the same loop without a learner, measured just before: on a loaded shared
+    machine both suffer alike, while a learner that blocked control (a lock, a long GIL hold)
+    would delay most ticks by far more.
+    """
     ds = _dataset(rng, 300)
     learner = Learner(LearnerConfig(loss_threshold=1e-12, max_updates=10**6), ds)
-    period_s, ticks = 1 / 10.5, 25
+    baseline_ms, _ = _control_loop(ds, rng, lambda: learner.latest_snapshot, 15)
     with LearnerThread(learner) as thread:
         assert _wait_for(lambda: thread.state is LearnerState.TRAINING)
         updates_before = learner.updates
-        stamps, work_ms, next_t = [], [], time.perf_counter()
-        for _ in range(ticks):
-            next_t += period_s
-            time.sleep(max(0.0, next_t - time.perf_counter()))
-            stamps.append(time.perf_counter())
-            thread.on_control_step().act(np.zeros(15, np.float32))
-            _grow(ds, rng, 1)
-            work_ms.append((time.perf_counter() - stamps[-1]) * 1e3)
+        jitter_ms, work_ms = _control_loop(ds, rng, thread.on_control_step, 25)
         busy_updates = learner.updates - updates_before
-    jitter_ms = np.abs(np.diff(stamps) - period_s) * 1e3
     assert busy_updates > 300, f"learner did only {busy_updates} updates: not busy"
-    # medians: other processes on a shared machine cause a few long stalls by themselves; a
-    # learner that blocked control (a lock, a long GIL hold) would delay most ticks
-    assert float(np.median(jitter_ms)) < 3.0, f"median period jitter {np.median(jitter_ms):.1f} ms"
-    assert float(np.median(work_ms)) < 2.0, f"control's own calls took {np.median(work_ms):.1f} ms"
+    allowed_ms = max(3.0, 3.0 * float(np.median(baseline_ms)) + 1.0)
+    assert float(np.median(jitter_ms)) < allowed_ms, (
+        f"median period jitter {np.median(jitter_ms):.1f} ms with the learner, "
+        f"{np.median(baseline_ms):.1f} ms without")
+    assert float(np.median(work_ms)) < max(2.0, allowed_ms), f"control's own calls took {np.median(work_ms):.1f} ms"
 
 
 def test_thread_keeps_out_of_controls_way_and_restores_the_interpreter() -> None:
