@@ -218,7 +218,7 @@ def demo(
 
 @app.command()
 def experiment(
-    config: Annotated[Path | None, typer.Option("--config", "-c", help="experiment TOML: the [experiment] grid plus [companion]/[sitl] tables (default: configs/experiment.toml)")] = None,
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="experiment TOML: the \\[experiment] grid plus \\[companion]/\\[sitl] tables (default: configs/experiment.toml)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="trials side by side, each with its own SITL (default: the number of CPUs)")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="results folder; run again with the same folder to resume (default: runs/<config name>)")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="a smoke run: configs/experiment_quick.toml unless --config is given")] = False,
