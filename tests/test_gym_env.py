@@ -142,3 +142,16 @@ def test_throttle_and_yaw_are_controlled_with_four_actions(env4_short: LandingEn
         obs, *_ = env4_short.step(np.array([0.0, 0.0, 1.0, 1.0], dtype=np.float32))
     assert obs[VD] < 0.0, "throttle +1 climbs"
     assert obs[YAW_RATE] > 0.0, "yaw +1 turns clockwise"
+
+
+@e2e
+def test_a_missed_frame_truncates_the_episode_without_reward(env2: LandingEnv, monkeypatch: pytest.MonkeyPatch) -> None:
+    obs, _ = env2.reset(seed=4)
+    monkeypatch.setattr(env2._runner, "answer", lambda command: None)  # the SITL sends no frame in time
+    last, reward, terminated, truncated, info = env2.step(np.zeros(2, dtype=np.float32))
+    assert truncated and not terminated and reward == 0.0 and info["outcome"] == "link_lost"
+    np.testing.assert_array_equal(last, obs)
+    monkeypatch.undo()
+    again, _ = env2.reset(seed=4)  # the next episode starts normally
+    np.testing.assert_array_equal(again, obs)
+

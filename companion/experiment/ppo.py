@@ -132,6 +132,7 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "touchdowns": len(distances),
         "timeouts": sum(r["outcome"] == "timeout" for r in runs),
         "fence": sum(r["outcome"] == "fence" for r in runs),
+        "link_lost": sum(r["outcome"] == "link_lost" for r in runs),
         "steps_mean": round(float(np.mean([r["steps"] for r in runs])), 1) if runs else 0.0,
     }
 
