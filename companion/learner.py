@@ -29,6 +29,7 @@ import torch.nn.functional as F
 
 from companion.config import LearnerConfig
 from companion.dataset import DatasetView
+from companion.errors import ConfigError
 from companion.observation import OBS_DIM
 from companion.policy import Normalisation, PolicyNet, PolicySnapshot
 
@@ -96,7 +97,7 @@ class Learner:
                     initial: PolicySnapshot | None) -> PolicyNet:
         if initial is not None:
             if initial.obs_dim != obs_dim or initial.hidden != tuple(config.hidden):
-                raise ValueError(
+                raise ConfigError(
                     f"initial policy is {initial.obs_dim}->{initial.hidden}, the config asks for "
                     f"{obs_dim}->{tuple(config.hidden)}; start fresh or use a matching config"
                 )

@@ -13,6 +13,7 @@ import pytest
 
 from companion.config import LearnerConfig
 from companion.dataset import DatasetView, HumanDataset, Sample, Source
+from companion.errors import ConfigError
 from companion.learner import (
     BudgetedLearner,
     ControlTickGuard,
@@ -159,7 +160,7 @@ def test_resume_from_a_snapshot(rng: np.random.Generator) -> None:
     x = rng.normal(size=(4, 15))
     np.testing.assert_array_equal(resumed.latest_snapshot.act(x), snap.act(x))
     assert resumed.latest_snapshot.version == 20
-    with pytest.raises(ValueError, match="start fresh"):
+    with pytest.raises(ConfigError, match="start fresh"):  # a ColError: `col fly` reports it without a traceback
         Learner(LearnerConfig(hidden=(8, 8)), ds, initial=snap)
 
 
