@@ -190,15 +190,16 @@ def demo(
                    f"interventions, then {eval_episodes} evaluation episodes of the policy alone.")
         demo_opts = RunOptions(pilot="expert", condition="demo", episodes=demonstrations, run_dir=root / "train", config_path=config)
         trained = run_episodes(cfg, demo_opts)
-        last = trained.run_dir / "checkpoints" / f"episode_{demonstrations - 1:03d}.npz"
+        last_episode = trained.records[-1].episode  # a resumed --run-dir numbers episodes on
+        last = trained.run_dir / "checkpoints" / f"episode_{last_episode:03d}.npz"
         if interventions:
             int_opts = RunOptions(pilot="expert", condition="int", episodes=interventions, run_dir=root / "train",
-                                  checkpoint=last, config_path=config, seed=cfg.session.seed + demonstrations,
-                                  first_episode=demonstrations)
+                                  checkpoint=last, config_path=config, seed=cfg.session.seed + last_episode + 1,
+                                  first_episode=last_episode + 1)
             more = run_episodes(cfg, int_opts)
             trained.records += more.records
             trained.dataset_size = more.dataset_size
-            last = more.run_dir / "checkpoints" / f"episode_{demonstrations + interventions - 1:03d}.npz"
+            last = more.run_dir / "checkpoints" / f"episode_{more.records[-1].episode:03d}.npz"
         report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config)
     except ColError as exc:
         raise _fail(exc) from None

@@ -10,10 +10,12 @@ import time
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
 
+from companion import cli
+from companion.app import RunOptions, RunResult
 from companion.dataset import load_csv
-
-pytestmark = pytest.mark.e2e
+from companion.session import EpisodeRecord
 
 
 def col_command() -> list[str]:
@@ -39,6 +41,7 @@ def wait_until(predicate, timeout_s: float) -> bool:  # type: ignore[no-untyped-
     return False
 
 
+@pytest.mark.e2e
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
 def test_sigterm_stops_col_fly_cleanly_with_its_sitl_and_keeps_the_data(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
@@ -66,3 +69,35 @@ def test_sigterm_stops_col_fly_cleanly_with_its_sitl_and_keeps_the_data(tmp_path
     assert episodes >= 1 and len(list((run_dir / "checkpoints").glob("episode_*.npz"))) >= episodes
     loaded = load_csv(run_dir / "human.csv")
     assert loaded.report.rows > 0 and loaded.report.skipped_rows == 0  # closed cleanly: nothing torn
+
+
+def _record(episode: int) -> EpisodeRecord:
+    return EpisodeRecord(episode=episode, phase="demonstration", seed=episode, steps=10, human_samples=10,
+                         interventions=0, intervention_s=0.0, intervention_durations_s=(), outcome="touchdown",
+                         success=True, touchdown_distance_m=0.1, touchdown_speed_m_s=0.2, policy_version=1,
+                         dataset_size=10, sim_time_s=1.0, wall_time_s=0.1)
+
+
+def test_col_demo_in_a_resumed_run_folder_continues_from_its_own_episodes(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A folder that already holds episodes 0-5: this demo's episodes are 6-8 and 9-11."""
+    calls: list[RunOptions] = []
+    evaluated: list[Path] = []
+
+    def fake_run_episodes(cfg, opts, on_episode=None):  # type: ignore[no-untyped-def]
+        calls.append(opts)
+        first = opts.first_episode or 6
+        return RunResult(opts.run_dir, [_record(first + k) for k in range(opts.episodes)], dataset_size=100)
+
+    def fake_evaluate(cfg, checkpoint, episodes, seed, run_dir, config):  # type: ignore[no-untyped-def]
+        evaluated.append(checkpoint)
+        return {"episodes": episodes, "successes": episodes, "success_rate": 1.0, "ci95": [0.7, 1.0]}
+
+    monkeypatch.setattr("companion.app.run_episodes", fake_run_episodes)
+    monkeypatch.setattr(cli, "evaluate", fake_evaluate)
+    result = CliRunner().invoke(cli.app, ["demo", "--run-dir", str(tmp_path), "--eval-episodes", "1"])
+    assert result.exit_code == 0, result.output
+    demo_opts, int_opts = calls
+    assert int_opts.checkpoint == tmp_path / "train" / "checkpoints" / "episode_008.npz"
+    assert int_opts.first_episode == 9
+    assert evaluated == [tmp_path / "train" / "checkpoints" / "episode_011.npz"]
