@@ -187,10 +187,10 @@ def _open_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: VehicleLi
         auto_uri = uri or None
     try:
         return open_camera(cfg.perception.camera, auto_uri=auto_uri, open_timeout_s=cfg.perception.open_timeout_s)
-    except ColError:
-        if sitl is None:
-            raise
-        log.warning("the SITL's camera is unavailable; flying with the pad reported as not visible")
+    except ColError as exc:
+        if sitl is None or cfg.perception.camera.strip() != "auto":
+            raise  # a source the person named must work: flying blind would record a useless dataset
+        log.warning("the SITL's camera is unavailable (%s); flying with the pad reported as not visible", exc)
         return None
 
 

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from companion.app import RunOptions, next_episode, run_episodes
+from companion.app import RunOptions, _open_camera, next_episode, run_episodes
 from companion.config import CompanionConfig
 from companion.dataset import load_csv
-from companion.errors import CheckpointError
+from companion.errors import CameraError, CheckpointError
+from companion.simulator import SitlProcess
 
 
 def test_a_missing_checkpoint_fails_before_making_the_run_folder(tmp_path: Path) -> None:
@@ -40,3 +41,21 @@ def test_a_resumed_run_folder_numbers_episodes_on_and_keeps_earlier_checkpoints(
     assert [(r["episode"], r["seed"]) for r in records] == [(0, 0), (1, 1)]  # new episode, new start
     assert sorted(p.name for p in (tmp_path / "checkpoints").glob("*.npz")) == ["episode_000.npz", "episode_001.npz"]
     assert sorted(set(load_csv(tmp_path / "human.csv").episode.tolist())) == [0, 1]
+
+
+class _NoCameraLink:
+    def request_message(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        return None  # no camera component answers
+
+
+def _with_camera(spec: str) -> CompanionConfig:
+    cfg = CompanionConfig()
+    return cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": spec, "open_timeout_s": 0.2})})
+
+
+def test_a_named_camera_that_does_not_open_is_an_error_even_with_our_sitl(tmp_path: Path) -> None:
+    sitl = SitlProcess(proc=None, ports={"camera_uri": None})  # type: ignore[arg-type]
+    with pytest.raises(CameraError, match="nope.mp4"):
+        _open_camera(_with_camera(str(tmp_path / "nope.mp4")), sitl, _NoCameraLink())  # type: ignore[arg-type]
+    # "auto" with a SITL whose camera is off: fly on, the pad counted as not visible
+    assert _open_camera(_with_camera("auto"), sitl, _NoCameraLink()) is None  # type: ignore[arg-type]
