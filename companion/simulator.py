@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import socket
 import subprocess
 import sys
@@ -115,19 +116,31 @@ def start_sitl(
         args.append("--no-camera")
     args += extra_args or []
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-    _lower_priority(proc.pid, nice)
-    deadline = time.monotonic() + timeout_s
+    # unbuffered: select() below must see every byte not yet read
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, bufsize=0)
+    try:
+        _lower_priority(proc.pid, nice)
+        return SitlProcess(proc, _wait_ready(proc, timeout_s))
+    except BaseException:  # refused, too slow, or Ctrl-C meanwhile: leave no SITL behind
+        SitlProcess(proc, {}).stop()
+        raise
+
+
+def _wait_ready(proc: subprocess.Popen[bytes], timeout_s: float) -> dict[str, Any]:
+    """The ports of the SITL's ``READY {json}`` line; SimulatorError if it exits or is too slow."""
     assert proc.stdout is not None
-    while time.monotonic() < deadline:
+    deadline = time.monotonic() + timeout_s
+    while (remaining := deadline - time.monotonic()) > 0:
+        if not select.select([proc.stdout], [], [], remaining)[0]:
+            break
         line = proc.stdout.readline()
         if not line:
             err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
             raise SimulatorError(f"the SITL exited before it was ready:\n{err[-2000:]}")
         if line.startswith(b"READY "):
-            return SitlProcess(proc, json.loads(line[6:]))
-    proc.kill()
-    raise SimulatorError(f"the SITL did not report READY within {timeout_s} s")
+            return dict(json.loads(line[6:]))
+    raise SimulatorError(f"the SITL did not report READY within {timeout_s} s; the machine may be "
+                         "overloaded, or run col-sitl by hand to see why")
 
 
 def _lower_priority(pid: int, nice: int) -> None:
