@@ -20,12 +20,17 @@ import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
 from companion.config import CompanionConfig
+from companion.errors import ColError
 from companion.experiment.grid import ExperimentSetup, Trial, expand
 from companion.experiment.results import ResultsFile, TrialResult
+
+if TYPE_CHECKING:
+    from companion.app import RunResult
 
 log = logging.getLogger(__name__)
 TrialFn = Callable[[ExperimentSetup, Trial, Path], TrialResult]
@@ -42,32 +47,49 @@ def trial_config(setup: ExperimentSetup, trial: Trial) -> CompanionConfig:
 
 def run_trial(setup: ExperimentSetup, trial: Trial, out_dir: Path) -> TrialResult:
     """Train, then evaluate the final policy; everything under ``out_dir/trials/<key>``."""
-    from companion.app import RunOptions, run_episodes
-
     cfg = trial_config(setup, trial)
     trial_dir = out_dir / "trials" / trial.key
     shutil.rmtree(trial_dir, ignore_errors=True)  # a crashed attempt's dataset must not carry over
     trial_dir.mkdir(parents=True)
     t0 = time.monotonic()
-    train = run_episodes(cfg, RunOptions(
-        pilot=f"synthetic:{trial.participant}", condition=trial.condition, episodes=trial.interactions,
-        run_dir=trial_dir / "train", config_path=setup.config_path, seed=trial.start_seed, lockstep=True))
-    if train.learner_error is not None:
-        raise RuntimeError(f"the learner failed in trial {trial.key}: {train.learner_error}")
+    train = _train(setup, cfg, trial, trial_dir / "train")
     final = trial_dir / "train" / "checkpoints" / f"episode_{trial.interactions - 1:03d}.npz"
     t1 = time.monotonic()
-    with tempfile.TemporaryDirectory(dir=trial_dir) as tmp:  # 100 runs of tlogs and checkpoints: dropped
-        evaluation = run_episodes(cfg, RunOptions(
-            pilot="none", condition="eval", episodes=setup.exp.eval_runs, checkpoint=final, run_dir=Path(tmp),
-            config_path=setup.config_path, seed=setup.exp.eval_seed, learn=False, record=False, lockstep=True))
-        shutil.copy(Path(tmp) / "episodes.jsonl", trial_dir / "eval_episodes.jsonl")
+    evaluation = _evaluate(setup, cfg, final, trial_dir)
     return TrialResult(
         trial=trial, fingerprint=setup.fingerprint(), status="ok",
         eval_runs=len(evaluation.records), eval_successes=evaluation.successes,
         human_samples=sum(r.human_samples for r in train.records),
         interventions=sum(r.interventions for r in train.records), train_successes=train.successes,
-        train_wall_s=round(t1 - t0, 2), eval_wall_s=round(time.monotonic() - t1, 2), final_checkpoint=str(final.relative_to(out_dir)),
+        train_wall_s=round(t1 - t0, 2), eval_wall_s=round(time.monotonic() - t1, 2),
+        final_checkpoint=str(final.relative_to(out_dir)),
     )
+
+
+def _train(setup: ExperimentSetup, cfg: CompanionConfig, trial: Trial, run_dir: Path) -> RunResult:
+    """The participant flies the condition's schedule from a fresh random policy."""
+    from companion.app import RunOptions, run_episodes
+
+    train = run_episodes(cfg, RunOptions(
+        pilot=f"synthetic:{trial.participant}", condition=trial.condition, episodes=trial.interactions,
+        run_dir=run_dir, config_path=setup.config_path, seed=trial.start_seed, lockstep=True))
+    if train.learner_error is not None:
+        raise ColError(f"the learner failed in trial {trial.key}: {train.learner_error}; "
+                       f"its run is in {run_dir}; run the grid again to retry the trial")
+    return train
+
+
+def _evaluate(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
+    """The final policy alone on the held-out starts; only the episode records are kept."""
+    from companion.app import RunOptions, run_episodes
+
+    with tempfile.TemporaryDirectory(dir=trial_dir) as tmp:  # 100 runs of tlogs and checkpoints: dropped
+        evaluation = run_episodes(cfg, RunOptions(
+            pilot="none", condition="eval", episodes=setup.exp.eval_runs, checkpoint=checkpoint,
+            run_dir=Path(tmp), config_path=setup.config_path, seed=setup.exp.eval_seed,
+            learn=False, record=False, lockstep=True))
+        shutil.copy(Path(tmp) / "episodes.jsonl", trial_dir / "eval_episodes.jsonl")
+    return evaluation
 
 
 def run_trial_safely(setup: ExperimentSetup, trial: Trial, out_dir: Path,
