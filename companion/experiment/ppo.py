@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import stable_baselines3
@@ -156,11 +156,11 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
     torch.set_num_threads(cfg.learner.torch_threads)
     env = LandingEnv(settings.action_dims, cfg, config_path=config_path)
     try:
-        wall0 = time.monotonic()
-        model, episodes = train(env, settings, on_episode)
-        train_s = time.monotonic() - wall0
+        with (out_dir / "train_episodes.jsonl").open("w") as log_file:
+            wall0 = time.monotonic()
+            model, episodes = train(env, settings, _logged(log_file, on_episode))
+            train_s = time.monotonic() - wall0
         model.save(out_dir / "model.zip")
-        _write_jsonl(out_dir / "train_episodes.jsonl", episodes)
         wall1 = time.monotonic()
         report = evaluate(model, env, settings.eval_episodes, settings.eval_seed)
         eval_s = time.monotonic() - wall1
@@ -190,7 +190,13 @@ def _results(settings: PpoSettings, episodes: list[dict[str, Any]], report: dict
     }
 
 
-def _write_jsonl(path: Path, records: list[dict[str, Any]]) -> None:
-    with path.open("w") as f:
-        for r in records:
-            f.write(json.dumps(r) + "\n")
+def _logged(log_file: IO[str], on_episode: EpisodeHook | None) -> EpisodeHook:
+    """Each training episode as a JSON line as soon as it ends (watchable, kept on a crash)."""
+
+    def hook(record: dict[str, Any]) -> None:
+        log_file.write(json.dumps(record) + "\n")
+        log_file.flush()
+        if on_episode is not None:
+            on_episode(record)
+
+    return hook
