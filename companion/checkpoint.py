@@ -157,7 +157,10 @@ def _read_arrays(p: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(p, allow_pickle=False) as npz:
             return {name: npz[name] for name in npz.files}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+    except ValueError as exc:  # not numpy's advice to allow pickles: a checkpoint never needs them
+        raise CheckpointError(f"checkpoint {p} is corrupt or truncated (not an .npz archive of plain "
+                              "arrays); use another one") from exc
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile) as exc:
         raise CheckpointError(f"checkpoint {p} is corrupt or truncated ({exc}); use another one") from exc
 
 
