@@ -110,14 +110,16 @@ class LearnerConfig(Section):
     max_updates: int = Field(2000, gt=0, description="updates per round; a round restarts on new samples")
     torch_threads: int = Field(1, ge=1)
     seed: int = 0
-    mode: Literal["thread", "budgeted"] = Field(
-        "thread", description="thread: live, as fast as the CPU allows; budgeted: reproducible"
+    mode: Literal["thread", "process", "budgeted"] = Field(
+        "thread",
+        description="thread: live, as fast as the CPU allows; process: the same in a child "
+        "process (needs a dataset file); budgeted: reproducible",
     )
     updates_per_step: int = Field(50, ge=1, description="budgeted mode: updates per control step")
     publish_every_updates: int = Field(
         8, ge=1, description="publish a snapshot at least this often (and after any new data)"
     )
-    thread_nice: int = Field(10, ge=0, le=19, description="learner thread's OS niceness (Linux)")
+    thread_nice: int = Field(10, ge=0, le=19, description="learner thread's or process's OS niceness")
     control_guard_s: float = Field(
         0.003, ge=0, le=0.05, description="learner thread steps aside this long before a control tick"
     )

@@ -21,7 +21,7 @@ import threading
 import time
 from dataclasses import dataclass
 from enum import Enum
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
@@ -32,6 +32,9 @@ from companion.dataset import DatasetView
 from companion.errors import ConfigError
 from companion.observation import OBS_DIM
 from companion.policy import Normalisation, PolicyNet, PolicySnapshot
+
+if TYPE_CHECKING:
+    from companion.learner_process import LearnerProcess
 
 log = logging.getLogger(__name__)
 
@@ -201,6 +204,15 @@ class Learner:
     def latest_snapshot(self) -> PolicySnapshot:
         """The newest complete snapshot; never waits for training."""
         return self._latest
+
+    def adopt(self, snapshot: PolicySnapshot) -> None:
+        """Make a snapshot trained elsewhere (the learner process) this learner's latest.
+
+        One assignment, cheap enough for the control tick, so checkpoints and ``latest_snapshot``
+        see the process's training. The torch model here is not changed: to train in this
+        process afterwards, build a new Learner with ``initial=snapshot``.
+        """
+        self._latest = snapshot
 
 
 class BudgetedLearner:
@@ -406,8 +418,16 @@ def _lower_this_threads_priority(nice: int) -> None:
         log.info("could not lower the learner thread's priority (%s); continuing", exc)
 
 
-def make_runner(learner: Learner) -> BudgetedLearner | LearnerThread:
-    """The runner the config asks for (``mode``): both offer start/on_control_step/stop."""
+def make_runner(learner: Learner) -> BudgetedLearner | LearnerThread | LearnerProcess:
+    """The runner the config asks for (``mode``): all offer start/on_control_step/stop/error.
+
+    ``process`` needs a dataset recorded to a file (the child reads it) and raises ConfigError
+    otherwise.
+    """
     if learner.config.mode == "budgeted":
         return BudgetedLearner(learner)
+    if learner.config.mode == "process":
+        from companion.learner_process import LearnerProcess  # it imports this module
+
+        return LearnerProcess(learner)
     return LearnerThread(learner)
