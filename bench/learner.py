@@ -1,6 +1,7 @@
 """Benchmark of the learner: update rate, sample-to-policy latency, control-loop jitter.
 
-Live threaded mode as in flight: a ``LearnerThread`` trains while this process simulates the
+Live mode as in flight: a ``LearnerThread`` (``--runner thread``) or a ``LearnerProcess``
+(``--runner process``; default: the config's ``mode``) trains while this process simulates the
 control loop at 10.5 Hz. Every tick the loop reads the latest snapshot, flies it (``act``) and
 records one of the person's samples to a real CSV file. A sample's latency ends at the first
 tick whose snapshot was trained on a dataset that held it (``dataset_size_trained``), so it is
@@ -8,7 +9,8 @@ at least one control period (95 ms); ``sample_to_publish_ms_*`` is the learner's
 (sample recorded -> snapshot published). The live run sets the loss threshold out of reach, so
 the learner trains without pause the whole time: the worst case for both jitter and latency.
 The same loop without a learner runs half the time before and half after (``..._idle``): the
-machine's own timing noise under whatever else is running on it.
+machine's own timing noise under whatever else is running on it. ``--busy-procs N`` starts N
+CPU-bound processes for the whole run, to measure on a loaded machine on purpose.
 
 Last line of stdout: one JSON object. Run with ``--quick`` for a short run.
 """
@@ -16,8 +18,10 @@ Last line of stdout: one JSON object. Run with ``--quick`` for a short run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -31,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from companion.config import LearnerConfig  # noqa: E402
 from companion.dataset import HumanDataset, Sample, Source  # noqa: E402
 from companion.learner import Learner, LearnerThread  # noqa: E402
+from companion.learner_process import LearnerProcess  # noqa: E402
 from companion.policy import PolicySnapshot  # noqa: E402
 
 RATE_HZ = 10.5
@@ -85,14 +90,19 @@ def jitter_ms(stamps: np.ndarray) -> np.ndarray:
 class _LiveRun:
     """The control tick of the live run plus the bookkeeping of latencies."""
 
-    def __init__(self, dataset: HumanDataset, thread: LearnerThread, expert: _Expert) -> None:
-        self.dataset, self.thread, self.expert = dataset, thread, expert
+    def __init__(self, dataset: HumanDataset, runner: LearnerThread | LearnerProcess,
+                 expert: _Expert) -> None:
+        self.dataset, self.runner, self.expert = dataset, runner, expert
         self.recorded_at: list[float] = []  # index i -> time sample i was recorded
         self.flown_at: dict[int, float] = {}
+        self.child_publishes: list[tuple[float, int]] = []  # process runner: (time, size)
         self.obs = np.zeros(15, np.float32)
 
     def tick(self, now: float) -> None:
-        snap = self.thread.on_control_step()
+        snap = self.runner.on_control_step()
+        if isinstance(self.runner, LearnerProcess) and snap.dataset_size_trained > (
+                self.child_publishes[-1][1] if self.child_publishes else 0):
+            self.child_publishes.append((self.runner.size_published_at_s, snap.dataset_size_trained))
         for i in range(len(self.flown_at), min(snap.dataset_size_trained, len(self.recorded_at))):
             self.flown_at[i] = now
         snap.act(self.obs)
@@ -124,19 +134,40 @@ def _publish_latencies_ms(recorded_at: list[float], publishes: list[tuple[float,
     return np.array(out)
 
 
-def live_run(config: LearnerConfig, duration_s: float, rng: np.random.Generator) -> dict:
+def _start_runner(kind: str, learner: Learner) -> LearnerThread | LearnerProcess:
+    """Start the runner and wait until it trains (a process needs a few seconds to start)."""
+    runner = LearnerProcess(learner) if kind == "process" else LearnerThread(learner)
+    runner.start()
+    deadline = time.monotonic() + 120.0
+    while runner.latest_snapshot.version == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return runner
+
+
+def live_run(config: LearnerConfig, duration_s: float, rng: np.random.Generator, kind: str) -> dict:
+    """Fly ``duration_s`` at 10.5 Hz while the ``kind`` runner trains flat out."""
     with tempfile.TemporaryDirectory() as tmp:
         dataset = HumanDataset(Path(tmp) / "human.csv")
         learner = Learner(config, dataset)
         publishes = _record_publishes(learner)
-        with LearnerThread(learner) as thread:
-            run = _LiveRun(dataset, thread, _Expert(rng))
-            updates0 = learner.updates
+        expert = _Expert(rng)
+        dataset.extend(expert.sample(0, i) for i in range(1))  # something to train on at once
+        runner = _start_runner(kind, learner)
+        run = _LiveRun(dataset, runner, expert)
+        run.recorded_at.append(float("-inf"))  # the seed sample is not measured
+        try:
+            updates0 = runner.latest_snapshot.version
             stamps = control_loop(duration_s, run.tick)
-            updates = learner.updates - updates0
+            updates = runner.latest_snapshot.version - updates0
+        finally:
+            runner.stop()
         dataset.close()
-    flown = np.array([(run.flown_at[i] - run.recorded_at[i]) * 1e3 for i in sorted(run.flown_at)])
+    if kind == "process":
+        publishes = run.child_publishes
+    flown = np.array([(run.flown_at[i] - run.recorded_at[i]) * 1e3 for i in sorted(run.flown_at)
+                      if i > 0])
     to_publish = _publish_latencies_ms(run.recorded_at, publishes)
+    to_publish = to_publish[np.isfinite(to_publish)]
     jit = jitter_ms(stamps)
     return {
         "sample_to_policy_ms_p50": round(float(np.percentile(flown, 50)), 2),
@@ -148,8 +179,20 @@ def live_run(config: LearnerConfig, duration_s: float, rng: np.random.Generator)
         "live_updates_per_s": round(updates / duration_s, 1),
         "ticks": int(len(stamps)),
         "samples_flown": int(len(flown)),
-        "learner_state_at_end": thread.state.value,
+        "learner_state_at_end": runner.state.value,
     }
+
+
+@contextlib.contextmanager
+def busy_processes(n: int):  # type: ignore[no-untyped-def]
+    """``n`` CPU-bound processes for the duration of the block: a loaded machine on purpose."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
 
 
 def main() -> None:
@@ -157,9 +200,21 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="short run (about 20 s)")
     parser.add_argument("--control-guard-s", type=float, default=None,
                         help="override control_guard_s (0 turns the tick guard off, to compare)")
+    parser.add_argument("--runner", choices=("thread", "process"), default=None,
+                        help="learner runner (default: the config's mode; thread if budgeted)")
+    parser.add_argument("--busy-procs", type=int, default=0,
+                        help="start this many CPU-bound processes for the run (a loaded machine)")
+    parser.add_argument("--duration-s", type=float, default=None, help="live run length")
     args = parser.parse_args()
-    duration_s = 8.0 if args.quick else 60.0
+    duration_s = args.duration_s or (8.0 if args.quick else 60.0)
     config = LearnerConfig()
+    kind = args.runner or (config.mode if config.mode in ("thread", "process") else "thread")
+    with busy_processes(args.busy_procs):
+        run_all(args, config, kind, duration_s)
+
+
+def run_all(args: argparse.Namespace, config: LearnerConfig, kind: str, duration_s: float) -> None:
+    """Update rate, idle loop, live run, idle loop; prints the JSON line."""
     if args.control_guard_s is not None:
         config = config.model_copy(update={"control_guard_s": args.control_guard_s})
     torch.set_num_threads(config.torch_threads)
@@ -168,7 +223,7 @@ def main() -> None:
     updates_per_s = measure_updates_per_s(config, 500 if args.quick else 3000, rng)
     busy = config.model_copy(update={"loss_threshold": 1e-9})
     idle_before = jitter_ms(control_loop(duration_s / 2, lambda now: None))
-    live = live_run(busy, duration_s, rng)
+    live = live_run(busy, duration_s, rng, kind)
     idle = np.concatenate([idle_before, jitter_ms(control_loop(duration_s / 2, lambda now: None))])
     print(f"updates/s {updates_per_s:.0f}; sample->policy p50 {live['sample_to_policy_ms_p50']} ms "
           f"p95 {live['sample_to_policy_ms_p95']} ms (learner's share p95 "
@@ -176,6 +231,8 @@ def main() -> None:
           f"{live['control_period_jitter_ms_p99']} ms busy, {np.percentile(idle, 99):.3f} ms idle")
     result = {
         "updates_per_s": round(updates_per_s, 1),
+        "runner": kind,
+        "busy_procs": args.busy_procs,
         **live,
         "control_period_jitter_ms_p99_idle": round(float(np.percentile(idle, 99)), 3),
         "control_rate_hz": RATE_HZ,
