@@ -17,6 +17,7 @@ import selectors
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -206,6 +207,8 @@ class SitlServer:
         self._stop = threading.Event()
         self._answered = False
         self._frame_ms = -1
+        self._control_queue: deque[tuple[ControlClient, bytes]] = deque()
+        self._at_frame_boundary = True
         self._mav_out = {AUTOPILOT: M.MAVLink(None, net.system_id, AUTOPILOT), CAMERA: M.MAVLink(None, net.system_id, CAMERA)}
         for local, remote in zip(net.udp_local_ports, net.udp_remote_ports):
             c = UdpClient(net.host, local, remote)
@@ -261,6 +264,8 @@ class SitlServer:
 
     def _run_frame(self) -> None:
         v = self.vehicle
+        self._serve_control_queue()
+        self._at_frame_boundary = False
         strict = self._strict()
         for _ in range(self.steps_per_frame):
             v.step()
@@ -289,6 +294,7 @@ class SitlServer:
                 return
 
     def _await_answer(self) -> None:
+        self._at_frame_boundary = True
         timeout_s = self.cfg.clock.lockstep_timeout_s if self.stats.attached else 0.0
         deadline = time.monotonic() + timeout_s
         while not self._answered and not self._stop.is_set():
@@ -435,6 +441,16 @@ class SitlServer:
         while b"\n" in cc.buffer and not cc.closed:
             line, cc.buffer = cc.buffer.split(b"\n", 1)
             if line.strip():
+                self._control_queue.append((cc, line))
+        if self._at_frame_boundary:
+            self._serve_control_queue()
+
+    def _serve_control_queue(self) -> None:
+        """Answer queued control requests. Called only between frames, so an episode reset
+        never lands in the middle of one: the first frame of an episode is always whole."""
+        while self._control_queue:
+            cc, line = self._control_queue.popleft()
+            if not cc.closed:
                 self._reply_control(cc, line)
 
     def _close_control(self, cc: ControlClient) -> None:
@@ -456,6 +472,11 @@ class SitlServer:
                 self.scheduler = self._fresh_scheduler()
                 self.handler.scheduler = self.scheduler
                 self._answered = True  # a reset answers the frame: the next one shows the start
+                if self.lockstep and not self.stats.attached:
+                    # whoever resets episodes drives the clock: from the first frame of the
+                    # episode on, each frame waits for its answer (no real-time frames slip in)
+                    self.stats.attached = True
+                    self.stats.timeouts_in_row = 0
         except RequestError as exc:
             reply = {"ok": False, "error": str(exc)}
         except (RecursionError, ValueError, TypeError, OverflowError, KeyError) as exc:

@@ -305,7 +305,10 @@ class SimVehicle:
         """Place the vehicle at a random start above the pad, hovering, armed, in hold."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
-        t = self.time_s
+        # Episodes start on a whole second of simulation time: the frames' time_boot_ms (whole
+        # milliseconds of a 95.238 ms period) then round alike in every episode, so whatever
+        # uses them (a pilot's timers) does not depend on when the episode began.
+        t = float(math.ceil(self.time_s))
         self.world.restart(t)
         start = self.world.episode_start(self.rng, t)
         self.dynamics = self._new_dynamics()
