@@ -199,7 +199,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     """Connect (or start the SITL), then fly ``episodes`` episodes of ``opts.condition``."""
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
-    synthetic = opts.pilot in ("expert", "none")
+    synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
     lockstep = opts.lockstep if opts.lockstep is not None else (synthetic and not opts.connection)
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
     initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
@@ -242,13 +242,13 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             for k, phase in enumerate(phases):
                 i = first + k
                 record = episode_runner.run(i, phase, seed0 + k)
+                dataset.sync()
+                if opts.record:  # checkpoint first: a record line always has its checkpoint (eval: none)
+                    save_checkpoint(run_dir / "checkpoints" / f"episode_{i:03d}.npz", learner.latest_snapshot,
+                                    cfg.learner, dataset_size=len(dataset), episode=i, condition=opts.condition,
+                                    extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
                 log_file.write(json.dumps(record.to_json_dict()) + "\n")
                 log_file.flush()
-                dataset.sync()
-                snap = learner.latest_snapshot
-                save_checkpoint(run_dir / "checkpoints" / f"episode_{i:03d}.npz", snap, cfg.learner,
-                                dataset_size=len(dataset), episode=i, condition=opts.condition,
-                                extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
                 result.records.append(record)
                 if on_episode is not None:
                     on_episode(record)
@@ -263,10 +263,18 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
 
 
 def next_episode(run_dir: Path) -> int:
-    """The number after the last episode checkpointed in ``run_dir`` (0 for a new folder), so that
-    a resumed run folder keeps its earlier checkpoints and starts from new seeds."""
+    """The number after the last episode of ``run_dir`` (0 for a new folder), from its checkpoints
+    and its episode records, so that a resumed run folder keeps what it has and starts from new
+    seeds."""
     numbers = [int(p.stem.removeprefix("episode_")) for p in (run_dir / "checkpoints").glob("episode_*.npz")
                if p.stem.removeprefix("episode_").isdigit()]
+    records = run_dir / "episodes.jsonl"
+    if records.is_file():
+        for line in records.read_text().splitlines():
+            try:
+                numbers.append(int(json.loads(line)["episode"]))
+            except (ValueError, KeyError, TypeError):
+                continue  # a torn last line from an interrupted run
     return max(numbers, default=-1) + 1
 
 

@@ -14,9 +14,11 @@ from companion.camera import CameraSource
 from companion.link.base import VehicleSnapshot
 from companion.observation import Observation
 from companion.perception import PadDetection, PadDetector
+from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
 WARN_EVERY_S = 5.0
+STALE_AFTER_TICKS = 3  # the camera runs at least at the control rate
 
 
 class Observer:
@@ -30,6 +32,9 @@ class Observer:
         self.frame_timeout_s = frame_timeout_s
         self.frames_missing = 0
         self.detect_errors = 0
+        self.frames_stale = 0
+        self._last_frame_number: int | None = None
+        self._repeats = 0
         self._last_warning_s = -WARN_EVERY_S
 
     def _warn(self, message: str) -> None:
@@ -44,7 +49,7 @@ class Observer:
             self.frames_missing += 1
             return None
         if time_boot_ms is None:
-            frame = self.camera.latest()
+            frame = self._fresh(self.camera.latest())
         else:
             frame = self.camera.frame_at(time_boot_ms, self.frame_timeout_s)
         if frame is None:
@@ -58,6 +63,20 @@ class Observer:
             self.detect_errors += 1
             self._warn(f"camera frame unusable: {exc}")
             return None
+
+    def _fresh(self, frame: Frame | None) -> Frame | None:
+        """Real time: a stream that stays connected but stops sending keeps handing out its
+        last frame; after STALE_AFTER_TICKS control steps with no new frame, that is no frame."""
+        if frame is None:
+            return None
+        if frame.frame_number == self._last_frame_number:
+            self._repeats += 1
+            if self._repeats >= STALE_AFTER_TICKS:
+                self.frames_stale += 1
+                return None
+        else:
+            self._last_frame_number, self._repeats = frame.frame_number, 0
+        return frame
 
     def observe(self, snapshot: VehicleSnapshot, lockstep: bool) -> Observation:
         """The observation for ``snapshot``; ValueError if its telemetry is not finite."""

@@ -252,9 +252,25 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
-        first, notes = self._start(seed)
+        try:
+            first, notes = self._start(seed)
+        except ColError as exc:  # refused reset, no OFFBOARD, lost vehicle: this episode only
+            log.error("episode %d could not start: %s", episode, exc)
+            return self._record(episode, phase, seed, 0, "error", None, None, 0, wall0, [f"start failed: {exc}"])
         t0_ms = first.time_boot_ms
         snap: VehicleSnapshot | None = first
+        outcome, version, steps = "timeout", None, 0
+        try:
+            outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
+        except ColError as exc:
+            log.error("episode %d ended by an error: %s", episode, exc)
+            outcome = "error"
+            notes.append(f"error: {exc}")
+        return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
+
+    def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
+             t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
+        """The control loop of one episode: (outcome, policy version, steps, last snapshot)."""
         outcome, version, steps = "timeout", None, 0
         for step in range(self.p.cfg.max_steps):
             if snap is None:
@@ -274,7 +290,7 @@ class EpisodeRunner:
             if self.p.runner is not None:
                 self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
             snap = self._next_snapshot()
-        return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
+        return outcome, version, steps, snap
 
     # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
     def begin(self, seed: int | None) -> VehicleSnapshot:
@@ -331,7 +347,11 @@ class EpisodeRunner:
         summary = self.arbiter.summary()
         success = distance = speed = None
         if self.p.simulator is not None:
-            td = self.p.simulator.truth().get("touchdown")
+            try:
+                td = self.p.simulator.truth().get("touchdown")
+            except ColError as exc:
+                notes.append(f"no ground truth: {exc}")
+                td = None
             if td is not None and outcome == "touchdown":
                 success, distance, speed = bool(td["success"]), float(td["distance_to_pad_m"]), float(td["speed_m_s"])
             elif outcome != "touchdown":

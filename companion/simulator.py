@@ -14,9 +14,10 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -68,10 +69,27 @@ class SimulatorClient:
 
 @dataclass
 class SitlProcess:
-    """A running ``col-sitl`` and the ports it bound."""
+    """A running ``col-sitl`` and the ports it bound.
+
+    After READY its output is drained on background threads into a short tail, so a chatty SITL
+    can never block on a full pipe (which would stall a lockstep run).
+    """
 
     proc: subprocess.Popen[bytes]
     ports: dict[str, Any]
+    tail: deque[str] = field(default_factory=lambda: deque(maxlen=200))
+
+    def drain(self) -> None:
+        for stream in (self.proc.stdout, self.proc.stderr):
+            if stream is not None:
+                threading.Thread(target=self._read_lines, args=(stream,), name="sitl-output", daemon=True).start()
+
+    def _read_lines(self, stream: Any) -> None:
+        try:
+            for line in iter(stream.readline, b""):
+                self.tail.append(line.decode(errors="replace").rstrip())
+        except (OSError, ValueError):
+            return  # closed by stop()
 
     @property
     def control_port(self) -> int:
@@ -105,9 +123,10 @@ def start_sitl(
 
     The SITL runs ``nice`` steps below the companion: on one machine it would otherwise take the
     companion's core while computing the next frame (a real autopilot has its own processor);
-    in lockstep it waits for the companion anyway, so this costs no throughput."""
+    in lockstep it waits for the companion anyway, so this costs no throughput. It also stops
+    when the thread that started it ends (Linux): start it from a thread that lives as long as it."""
     args = [sys.executable, "-m", "sitl", "--clock", clock, "--udp", f"0:{udp_remote_port}", "--tcp", "-1",
-            "--camera-port", "0", "--control-port", "0"]
+            "--camera-port", "0", "--control-port", "0", "--exit-with-parent"]
     if config is not None:
         args += ["--config", str(config)]
     if seed is not None:
@@ -120,7 +139,9 @@ def start_sitl(
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, bufsize=0)
     try:
         _lower_priority(proc.pid, nice)
-        return SitlProcess(proc, _wait_ready(proc, timeout_s))
+        sitl = SitlProcess(proc, _wait_ready(proc, timeout_s))
+        sitl.drain()
+        return sitl
     except BaseException:  # refused, too slow, or Ctrl-C meanwhile: leave no SITL behind
         SitlProcess(proc, {}).stop()
         raise

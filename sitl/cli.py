@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
+import os
 import signal
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -26,6 +29,18 @@ def _parse_udp(pairs: list[str]) -> tuple[tuple[int, ...], tuple[int, ...]]:
         except ValueError:
             raise typer.BadParameter(f"--udp takes LOCAL:REMOTE port pairs, got {pair!r}") from None
     return tuple(local), tuple(remote)
+
+
+def _exit_with_parent() -> None:
+    """Ask Linux to send SIGTERM when the parent dies (a killed `col` leaves no SITL behind)."""
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return  # not Linux: the parent's stop() is the only guard
+    if os.getppid() != parent:  # the parent died before the request took effect
+        sys.exit(0)
 
 
 def build_config(
@@ -75,8 +90,11 @@ def run(
     no_camera: Annotated[bool, typer.Option("--no-camera", help="do not render or serve the camera")] = False,
     duration: Annotated[float | None, typer.Option(help="stop after this much simulation time (s)")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
+    exit_with_parent: Annotated[bool, typer.Option("--exit-with-parent", help="stop when the process that started it dies (Linux)")] = False,
 ) -> None:
     """Start the SITL. Prints one line `READY {json}` with the bound ports once it listens."""
+    if exit_with_parent:
+        _exit_with_parent()
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
     try:
         cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera)

@@ -59,3 +59,10 @@ def test_a_named_camera_that_does_not_open_is_an_error_even_with_our_sitl(tmp_pa
         _open_camera(_with_camera(str(tmp_path / "nope.mp4")), sitl, _NoCameraLink())  # type: ignore[arg-type]
     # "auto" with a SITL whose camera is off: fly on, the pad counted as not visible
     assert _open_camera(_with_camera("auto"), sitl, _NoCameraLink()) is None  # type: ignore[arg-type]
+
+
+def test_next_episode_also_follows_the_records_of_a_run_without_checkpoints(tmp_path: Path) -> None:
+    from companion.app import next_episode
+
+    (tmp_path / "episodes.jsonl").write_text('{"episode": 0}\n{"episode": 4}\n{"episo')
+    assert next_episode(tmp_path) == 5

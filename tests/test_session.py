@@ -258,3 +258,47 @@ def test_non_finite_telemetry_holds_that_step() -> None:
     runner.run(0, Phase.DEMONSTRATION, seed=1)
     assert VelocitySetpoint(0.0, 0.0, 0.0, 0.0) in [sp for sp, _ in link.sent[1:]]
     assert len(dataset) == 3  # the bad step is not recorded
+
+
+def test_an_episode_that_cannot_start_is_recorded_as_an_error_and_the_next_one_flies() -> None:
+    from companion.errors import SimulatorError
+
+    link = KinematicLink((0.0, 0.0, -3.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=5)
+    sim = runner.p.simulator
+    real_reset = sim.reset  # type: ignore[union-attr]
+
+    def refuse_once(seed=None):  # type: ignore[no-untyped-def]
+        sim.reset = real_reset  # type: ignore[union-attr]
+        raise SimulatorError("simulator refused 'reset': busy")
+
+    sim.reset = refuse_once  # type: ignore[union-attr]
+    failed = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert failed.outcome == "error" and failed.steps == 0 and "busy" in failed.notes[0]
+    assert failed.success is False
+    ok = runner.run(1, Phase.AUTONOMOUS, seed=2)
+    assert ok.outcome == "timeout" and ok.steps == 5
+
+
+def test_a_refused_offboard_after_link_recovery_ends_only_that_episode(monkeypatch: pytest.MonkeyPatch) -> None:
+    from companion.errors import CommandRejected
+
+    link = KinematicLink((0.0, 0.0, -5.0))
+    link.silent_frames = {4}
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.session.time.sleep", lambda s: None)
+
+    def refuse(name: str) -> None:
+        if link.modes:  # the first hand-over works, the one after the loss is refused
+            raise CommandRejected("set_mode('OFFBOARD')", "DENIED")
+        link.modes.append(name)
+        link.mode = name
+
+    def recover():  # type: ignore[no-untyped-def]
+        link.alive, link.mode = True, "AUTO.LOITER"
+        return link._snap()
+
+    link.set_mode = refuse  # type: ignore[method-assign]
+    monkeypatch.setattr(runner, "_recover_link", recover)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert record.outcome == "error" and "DENIED" in record.notes[-1]

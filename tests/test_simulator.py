@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import subprocess
+import time
 
 import pytest
 
@@ -41,3 +42,48 @@ def test_ctrl_c_while_starting_leaves_no_sitl_running(started: list[subprocess.P
     with pytest.raises(KeyboardInterrupt):
         simulator.start_sitl(free_port())
     assert len(started) == 1 and started[0].poll() is not None
+
+
+def test_a_killed_parent_leaves_no_sitl_behind(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import sys, time\n"
+        "from companion.simulator import start_sitl\n"
+        f"s = start_sitl({free_port()}, clock='realtime', camera=False)\n"
+        "print(s.proc.pid, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                              cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    try:
+        sitl_pid = int(parent.stdout.readline())  # type: ignore[union-attr]
+        os.kill(parent.pid, signal.SIGKILL)  # no cleanup code of the parent runs
+        parent.wait(5)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                os.kill(sitl_pid, 0)
+            except ProcessLookupError:
+                return
+            time.sleep(0.1)
+        os.kill(sitl_pid, signal.SIGKILL)
+        raise AssertionError("the SITL outlived the process that started it")
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def test_the_sitl_output_is_drained_after_ready() -> None:
+    from companion.simulator import start_sitl
+
+    sitl = start_sitl(free_port(), clock="realtime", camera=False, extra_args=["--verbose"])
+    sitl.stop()
+    deadline = time.monotonic() + 5
+    while not any('"frames"' in line for line in sitl.tail) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert any('"frames"' in line for line in sitl.tail)  # the exit summary reached the tail
