@@ -204,6 +204,7 @@ class OpenCVCameraSource:
         self._thread: threading.Thread | None = None
         self._t0 = 0.0
         self._count = 0
+        self._release_lock = threading.Lock()
 
     def open(self) -> None:
         timeout_ms = int(self.open_timeout_s * 1000)
@@ -227,11 +228,20 @@ class OpenCVCameraSource:
         return self._slot.wait(time_boot_ms, timeout_s)
 
     def close(self) -> None:
+        """Stop reading and release the capture, never under a read that is still running (a
+        network read can block up to the read timeout): a late reader releases it itself."""
         self._closed.set()
         if self._thread is not None:
-            self._thread.join(2.0)
-        if self._cap is not None:
-            self._cap.release()
+            self._thread.join(self.open_timeout_s + 1.0)
+            if self._thread.is_alive():
+                return  # _run releases the capture when its read returns
+        self._release()
+
+    def _release(self) -> None:
+        with self._release_lock:
+            if self._cap is not None:
+                self._cap.release()
+                self._cap = None
 
     def _grab(self) -> Frame | None:
         assert self._cap is not None
@@ -251,12 +261,16 @@ class OpenCVCameraSource:
         assert self._cap is not None
         fps = self._cap.get(cv2.CAP_PROP_FPS) if self._is_file else 0.0
         period_s = 1.0 / fps if fps and fps > 0 else 0.0
-        while not self._closed.wait(period_s):
-            frame = self._grab()
-            if frame is None:
-                self._slot.mark_dead("capture returned no frame (device unplugged or end of file)")
-                return
-            self._slot.put(frame)
+        try:
+            while not self._closed.wait(period_s):
+                frame = self._grab()
+                if frame is None:
+                    self._slot.mark_dead("capture returned no frame (device unplugged or end of file)")
+                    return
+                self._slot.put(frame)
+        finally:
+            if self._closed.is_set():
+                self._release()
 
 
 def parse_colf_uri(uri: str) -> tuple[str, int]:
