@@ -63,8 +63,9 @@ class NoHuman(HumanInput):
         return HumanCommand.neutral()
 
 
-def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink) -> HumanInput:
-    """The person (or their stand-in) behind the override trigger."""
+def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None) -> HumanInput:
+    """The person (or their stand-in) behind the override trigger. A ground station's
+    MANUAL_CONTROL needs the link: without one here, attach it later (`attach_human`)."""
     if kind == "expert":
         from companion.inputs.expert import InterveningExpert
 
@@ -73,7 +74,8 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink) -> HumanInpu
         from companion.inputs.manual_control import ManualControlInput
 
         source = ManualControlInput(cfg.pilot)
-        link.on_manual_control(source.feed)
+        if link is not None:
+            link.on_manual_control(source.feed)
         return source
     if kind == "gamepad":
         from companion.inputs.gamepad import GamepadInput
@@ -86,6 +88,14 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink) -> HumanInpu
 
         return synthetic_pilot(profile_named(kind.partition(":")[2]), cfg.pilot, cfg.session.seed)
     raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none or synthetic:P1..P4")
+
+
+def attach_human(human: HumanInput, link: VehicleLink) -> None:
+    """Connect a human input that listens to the vehicle's link (MANUAL_CONTROL) to it."""
+    from companion.inputs.manual_control import ManualControlInput
+
+    if isinstance(human, ManualControlInput):
+        link.on_manual_control(human.feed)
 
 
 def free_udp_port() -> int:
@@ -208,6 +218,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     result = RunResult(run_dir)
     first = opts.first_episode or next_episode(run_dir)
     with contextlib.ExitStack() as stack:
+        human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
+        stack.callback(human.close)
         connection, sitl = stack.enter_context(vehicle_connection(cfg, opts, lockstep))
         link_cfg = cfg.link.model_copy(update={"connection": connection})
         link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
@@ -226,8 +238,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         if runner is not None:
             runner.start()
             stack.callback(runner.stop)
-        human = build_human(opts.pilot, cfg, link)
-        stack.callback(human.close)
+        attach_human(human, link)
         parts = EpisodeParts(
             link=link,
             observer=Observer(camera, PadDetector(cfg.perception), (320, 240), cfg.perception.frame_timeout_s),

@@ -66,3 +66,14 @@ def test_next_episode_also_follows_the_records_of_a_run_without_checkpoints(tmp_
 
     (tmp_path / "episodes.jsonl").write_text('{"episode": 0}\n{"episode": 4}\n{"episo')
     assert next_episode(tmp_path) == 5
+
+
+def test_an_unknown_pilot_fails_before_any_simulator_starts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import companion.app as app
+    from companion.errors import ConfigError
+
+    started: list[int] = []
+    monkeypatch.setattr(app, "start_sitl", lambda *a, **k: started.append(1))
+    with pytest.raises(ConfigError, match="unknown pilot"):
+        run_episodes(CompanionConfig(), RunOptions(pilot="robot", episodes=1, run_dir=tmp_path / "r"))
+    assert not started
