@@ -217,6 +217,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     (run_dir / "checkpoints").mkdir(exist_ok=True)
     result = RunResult(run_dir)
     first = opts.first_episode or next_episode(run_dir)
+    if initial is None and opts.learn and first > 0:
+        initial = _resume_policy(run_dir, first)
     with contextlib.ExitStack() as stack:
         human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
         stack.callback(human.close)
@@ -271,6 +273,16 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     return result
+
+
+def _resume_policy(run_dir: Path, first: int) -> PolicySnapshot | None:
+    """Continuing a run folder: go on learning from its newest checkpoint, not from scratch."""
+    for episode in range(first - 1, -1, -1):
+        path = run_dir / "checkpoints" / f"episode_{episode:03d}.npz"
+        if path.is_file():
+            log.info("resuming %s: the policy continues from %s", run_dir, path.name)
+            return load_checkpoint(path)[0]
+    return None
 
 
 def next_episode(run_dir: Path) -> int:

@@ -77,3 +77,17 @@ def test_an_unknown_pilot_fails_before_any_simulator_starts(tmp_path: Path, monk
     with pytest.raises(ConfigError, match="unknown pilot"):
         run_episodes(CompanionConfig(), RunOptions(pilot="robot", episodes=1, run_dir=tmp_path / "r"))
     assert not started
+
+
+def test_a_resumed_run_folder_continues_from_its_newest_policy(tmp_path: Path) -> None:
+    from companion.app import _resume_policy
+    from companion.checkpoint import save_checkpoint
+    from companion.policy import PolicyNet
+
+    assert _resume_policy(tmp_path, 3) is None  # nothing to resume from
+    (tmp_path / "checkpoints").mkdir()
+    cfg = CompanionConfig().learner
+    snap = PolicyNet(15, cfg.hidden, init_std=0.1).snapshot(version=42)
+    save_checkpoint(tmp_path / "checkpoints" / "episode_001.npz", snap, cfg, dataset_size=10, episode=1, condition="demo")
+    resumed = _resume_policy(tmp_path, 3)
+    assert resumed is not None and resumed.version == 42
