@@ -170,7 +170,7 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         sitl.stop()
 
 
-def _simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorClient | None:
+def simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorClient | None:
     """The SITL's control surface: ours, the one named by --simulator, or none (real vehicle)."""
     if sitl is not None:
         return SimulatorClient("127.0.0.1", sitl.control_port)
@@ -182,7 +182,7 @@ def _simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorCl
     return None
 
 
-def _open_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: VehicleLink,
+def open_run_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: VehicleLink,
                  camera_component: int = 100) -> CameraSource | None:
     """The camera. ``"auto"``: our SITL's stream, or on another vehicle the stream its MAVLink
     camera (component 100, MAV_COMP_ID_CAMERA) advertises in VIDEO_STREAM_INFORMATION."""
@@ -227,10 +227,10 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
         stack.callback(link.close)
         link.connect(timeout_s=30.0)
-        simulator = _simulator_client(opts, sitl)
+        simulator = simulator_client(opts, sitl)
         if simulator is not None:
             stack.callback(simulator.close)
-        camera = _open_camera(cfg, sitl, link)
+        camera = open_run_camera(cfg, sitl, link)
         if camera is not None:
             stack.callback(camera.close)
         dataset = HumanDataset(run_dir / "human.csv" if opts.record else None)

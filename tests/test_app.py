@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.app import RunOptions, _open_camera, next_episode, run_episodes
+from companion.app import RunOptions, next_episode, open_run_camera, run_episodes
 from companion.config import CompanionConfig
 from companion.dataset import load_csv
 from companion.errors import CameraError, CheckpointError
@@ -56,9 +56,9 @@ def _with_camera(spec: str) -> CompanionConfig:
 def test_a_named_camera_that_does_not_open_is_an_error_even_with_our_sitl(tmp_path: Path) -> None:
     sitl = SitlProcess(proc=None, ports={"camera_uri": None})  # type: ignore[arg-type]
     with pytest.raises(CameraError, match="nope.mp4"):
-        _open_camera(_with_camera(str(tmp_path / "nope.mp4")), sitl, _NoCameraLink())  # type: ignore[arg-type]
+        open_run_camera(_with_camera(str(tmp_path / "nope.mp4")), sitl, _NoCameraLink())  # type: ignore[arg-type]
     # "auto" with a SITL whose camera is off: fly on, the pad counted as not visible
-    assert _open_camera(_with_camera("auto"), sitl, _NoCameraLink()) is None  # type: ignore[arg-type]
+    assert open_run_camera(_with_camera("auto"), sitl, _NoCameraLink()) is None  # type: ignore[arg-type]
 
 
 def test_next_episode_also_follows_the_records_of_a_run_without_checkpoints(tmp_path: Path) -> None:

@@ -593,12 +593,12 @@ def _video_file(path, frames: int = 20) -> str:
 
 
 def test_auto_camera_opens_the_stream_the_vehicle_advertises(fake, make_link, tmp_path) -> None:
-    from companion.app import _open_camera
+    from companion.app import open_run_camera
     from companion.config import CompanionConfig
 
     link = make_link()
     FakeCamera(fake, _video_file(tmp_path / "down.avi")).start()
-    camera = _open_camera(CompanionConfig(), None, link)
+    camera = open_run_camera(CompanionConfig(), None, link)
     try:
         assert camera is not None and _until(lambda: camera.latest() is not None)
         assert camera.latest().image.shape == (48, 64, 3)  # type: ignore[union-attr]
@@ -608,13 +608,13 @@ def test_auto_camera_opens_the_stream_the_vehicle_advertises(fake, make_link, tm
 
 
 def test_auto_camera_without_a_camera_component_says_what_to_set(fake, make_link) -> None:
-    from companion.app import _open_camera
+    from companion.app import open_run_camera
     from companion.config import CompanionConfig, PerceptionConfig
     from companion.errors import CameraError
 
     cfg = CompanionConfig(perception=PerceptionConfig(open_timeout_s=0.5))
     with pytest.raises(CameraError, match="advertised no video stream"):
-        _open_camera(cfg, None, make_link())
+        open_run_camera(cfg, None, make_link())
 
 
 @pytest.fixture

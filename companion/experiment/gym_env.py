@@ -26,7 +26,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from companion.app import NoHuman, RunOptions, _open_camera, _simulator_client, vehicle_connection
+from companion.app import NoHuman, RunOptions, open_run_camera, simulator_client, vehicle_connection
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.errors import ColError, ConfigError, LinkError
@@ -111,10 +111,10 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         link = open_link(self.cfg.link.model_copy(update={"connection": connection}))
         self._stack.callback(link.close)
         link.connect(timeout_s=30.0)
-        simulator = _simulator_client(opts, sitl)
+        simulator = simulator_client(opts, sitl)
         assert simulator is not None  # ours, or the --simulator given (checked in __init__)
         self._stack.callback(simulator.close)
-        camera = _open_camera(self.cfg, sitl, link)
+        camera = open_run_camera(self.cfg, sitl, link)
         if camera is not None:
             self._stack.callback(camera.close)
         parts = EpisodeParts(
