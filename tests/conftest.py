@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import os
 import socket
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
 
+from companion.testing.fake_vehicle import FakeVehicle
 from tests.mav_client import MavTestClient
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -24,6 +26,23 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def wait_until(test: Callable[[], bool], timeout_s: float = 2.0) -> bool:
+    """Poll ``test`` until it holds (True) or ``timeout_s`` passes (False)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if test():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+@pytest.fixture
+def fake() -> Iterator[FakeVehicle]:
+    """The fake PX4-like MAVLink endpoint on a free loopback port."""
+    with FakeVehicle(heartbeat_period_s=0.2) as vehicle:
+        yield vehicle
 
 
 @pytest.fixture

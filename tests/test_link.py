@@ -21,27 +21,13 @@ from companion.link.mavlink_link import MavlinkLink
 from companion.setpoints import VelocitySetpoint
 from companion.testing import FakeVehicle
 from companion.testing.link_contract import run_link_contract
+from tests.conftest import wait_until as _until
 
 
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def _until(test: Callable[[], bool], timeout_s: float = 2.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if test():
-            return True
-        time.sleep(0.01)
-    return False
-
-
-@pytest.fixture
-def fake() -> Iterator[FakeVehicle]:
-    with FakeVehicle(heartbeat_period_s=0.2) as vehicle:
-        yield vehicle
 
 
 @pytest.fixture

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -15,23 +15,9 @@ from companion.link.mavsdk_link import MavsdkLink, mavsdk_url
 from companion.setpoints import VelocitySetpoint
 from companion.testing import FakeVehicle
 from companion.testing.link_contract import run_link_contract
+from tests.conftest import wait_until as _until
 
 pytest.importorskip("mavsdk")
-
-
-def _until(test: Callable[[], bool], timeout_s: float = 2.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if test():
-            return True
-        time.sleep(0.01)
-    return False
-
-
-@pytest.fixture
-def fake() -> Iterator[FakeVehicle]:
-    with FakeVehicle(heartbeat_period_s=0.2) as vehicle:
-        yield vehicle
 
 
 @pytest.fixture
