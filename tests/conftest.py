@@ -28,14 +28,14 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         return int(s.getsockname()[1])
 
 
-def wait_until(test: Callable[[], bool], timeout_s: float = 2.0) -> bool:
-    """Poll ``test`` until it holds (True) or ``timeout_s`` passes (False)."""
+def wait_until(test: Callable[[], bool], timeout_s: float = 3.0) -> bool:
+    """Poll ``test`` until it holds (True) or ``timeout_s`` passes (its last answer)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if test():
             return True
         time.sleep(0.01)
-    return False
+    return bool(test())
 
 
 @pytest.fixture

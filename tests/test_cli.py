@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -16,6 +15,7 @@ from companion import cli
 from companion.app import RunOptions, RunResult
 from companion.dataset import load_csv
 from companion.session import EpisodeRecord
+from tests.conftest import wait_until
 
 
 def col_command() -> list[str]:
@@ -32,13 +32,6 @@ def children_of(pid: int) -> list[int]:
     return kids
 
 
-def wait_until(predicate, timeout_s: float) -> bool:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
 
 
 @pytest.mark.e2e

@@ -23,20 +23,13 @@ from sitl.frames import (
     encode_frame,
     read_frame,
 )
-from tests.conftest import free_port
+from tests.conftest import free_port, wait_until
 
 
 def make_frame(rng: np.random.Generator, number: int = 3, stamp_ms: int = 1234, size=(24, 32)) -> Frame:
     return Frame(number, stamp_ms, rng.integers(0, 256, size=(*size, 3), dtype=np.uint8))
 
 
-def wait_until(predicate, timeout_s: float = 3.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
 
 
 # ---- wire format -------------------------------------------------------------------------

@@ -23,6 +23,7 @@ from companion.learner import (
     make_runner,
 )
 from companion.policy import PolicySnapshot
+from tests.conftest import wait_until
 
 MAPPING = np.random.default_rng(99).normal(0, 0.4, size=(4, 15)).astype(np.float32)
 
@@ -185,13 +186,8 @@ class _PoisonedSource:
         return 64
 
 
-def _wait_for(predicate, timeout_s: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.005)
-    return False
+def _wait_for(predicate, timeout_s: float = 10.0) -> bool:  # type: ignore[no-untyped-def]
+    return wait_until(predicate, timeout_s)
 
 
 def test_thread_trains_idles_and_stops(rng: np.random.Generator) -> None:

@@ -16,6 +16,7 @@ from companion.dataset import HumanDataset, Sample, Source
 from companion.errors import ConfigError, DatasetCorrupt
 from companion.learner import Learner, LearnerState, make_runner
 from companion.learner_process import CsvTail, LearnerProcess, LearnerProcessFailed
+from tests.conftest import wait_until
 
 MAPPING = np.random.default_rng(99).normal(0, 0.4, size=(4, 15)).astype(np.float32)
 PERIOD_S = 1 / 10.5
@@ -40,12 +41,7 @@ def _dataset(tmp_path: Path, rng: np.random.Generator, n: int) -> HumanDataset:
 
 def _wait_for(predicate: Callable[[], bool], timeout_s: float = 30.0) -> bool:
     """Generous: starting a child (an interpreter plus torch) is slow on a loaded machine."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
+    return wait_until(predicate, timeout_s)
 
 
 def _gone(pid: int) -> bool:
