@@ -10,6 +10,7 @@ WORKDIR /app
 COPY pyproject.toml Makefile README.md ./
 COPY companion ./companion
 COPY sitl ./sitl
+COPY colcommon ./colcommon
 COPY configs ./configs
 COPY bench ./bench
 COPY tests ./tests

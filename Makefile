@@ -29,8 +29,8 @@ bench: setup
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 lint: setup
-	$(PY) -m ruff check companion sitl tests bench
-	$(PY) -m mypy companion sitl
+	$(PY) -m ruff check companion sitl colcommon tests bench
+	$(PY) -m mypy companion sitl colcommon
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -37,21 +37,21 @@ from typing import Any
 
 import numpy as np
 
-from companion.arbiter import Phase
-from companion.camera import open_camera
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig, load_companion_config
+from companion.control.arbiter import Phase
+from companion.control.safety import Geofence, SetpointLimiter
+from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
+from companion.learning.policy import PolicyNet, PolicySnapshot
 from companion.link.mavlink_link import MavlinkLink
-from companion.observation import Observation
-from companion.observer import Observer
-from companion.perception import PadDetector
-from companion.policy import PolicyNet, PolicySnapshot
-from companion.safety import Geofence, SetpointLimiter
-from companion.session import EpisodeParts, EpisodeRunner
-from companion.setpoints import VelocitySetpoint
+from companion.link.setpoints import VelocitySetpoint
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
+from companion.vision.camera import open_camera
+from companion.vision.observation import Observation
+from companion.vision.observer import Observer
+from companion.vision.perception import PadDetector
 
 Clock = Callable[[], float]
 

@@ -33,10 +33,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from companion.config import LearnerConfig  # noqa: E402
-from companion.dataset import HumanDataset, Sample, Source  # noqa: E402
-from companion.learner import Learner, LearnerThread  # noqa: E402
-from companion.learner_process import LearnerProcess  # noqa: E402
-from companion.policy import PolicySnapshot  # noqa: E402
+from companion.learning.dataset import HumanDataset, Sample, Source  # noqa: E402
+from companion.learning.learner import Learner  # noqa: E402
+from companion.learning.learner_process import LearnerProcess  # noqa: E402
+from companion.learning.policy import PolicySnapshot  # noqa: E402
+from companion.learning.runners import LearnerThread  # noqa: E402
 
 RATE_HZ = 10.5
 

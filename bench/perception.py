@@ -23,7 +23,7 @@ import time
 import cv2
 import numpy as np
 
-from companion.perception import PadDetector
+from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
 from sitl.frames import Frame, decode_frame, encode_frame

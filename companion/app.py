@@ -17,24 +17,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from companion.arbiter import Phase
-from companion.camera import CameraSource, open_camera
-from companion.checkpoint import load_checkpoint, save_checkpoint
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
-from companion.dataset import HumanDataset
+from companion.control.arbiter import Phase
+from companion.control.safety import Geofence, SetpointLimiter
+from companion.control.session import EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.errors import ColError, ConfigError
 from companion.inputs.base import HumanCommand, HumanInput
-from companion.learner import Learner, make_runner
+from companion.learning.checkpoint import load_checkpoint, save_checkpoint
+from companion.learning.dataset import HumanDataset
+from companion.learning.learner import Learner
+from companion.learning.policy import PolicySnapshot
+from companion.learning.runners import make_runner
 from companion.link import open_link
 from companion.link.base import VehicleLink
-from companion.observation import Observation
-from companion.observer import Observer
-from companion.perception import PadDetector
-from companion.policy import PolicySnapshot
-from companion.safety import Geofence, SetpointLimiter
-from companion.session import EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
+from companion.vision.camera import CameraSource, open_camera
+from companion.vision.observation import Observation
+from companion.vision.observer import Observer
+from companion.vision.perception import PadDetector
 
 log = logging.getLogger(__name__)
 Condition = Literal["demo", "int", "col", "eval"]
@@ -84,7 +85,7 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None
     if kind == "none":
         return NoHuman()
     if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2"
-        from companion.experiment.pilots import profile_named, synthetic_pilot
+        from companion.inputs.synthetic import profile_named, synthetic_pilot
 
         return synthetic_pilot(profile_named(kind.partition(":")[2]), cfg.pilot, cfg.session.seed)
     raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none or synthetic:P1..P4")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import signal
 import statistics
@@ -15,6 +14,7 @@ import typer
 from tqdm import tqdm
 
 from companion.errors import ColError
+from companion.statistics import wilson_interval
 
 app = typer.Typer(add_completion=False, help=__doc__, no_args_is_help=True)
 
@@ -47,17 +47,6 @@ def _load(config: Path | None):  # type: ignore[no-untyped-def]
     from companion.config import load_companion_config
 
     return load_companion_config(config)
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a success rate (sound for small n and rates near 0 or 1)."""
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def _progress(total: int, label: str):  # type: ignore[no-untyped-def]
@@ -261,7 +250,7 @@ def ppo(
     """The paper's PPO baseline: sparse success reward, trained in the lockstep SITL, then evaluated."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.experiment.ppo import PpoSettings, run_ppo
+    from companion.rl.ppo import PpoSettings, run_ppo
 
     try:
         cfg = _load(config)

@@ -2,7 +2,7 @@
 
 A :class:`JoystickCommand` is what people and policies produce and what the dataset records
 (order roll, pitch, yaw, throttle, each in [-1, 1]). :class:`CommandMapper` turns it into a
-:class:`~companion.setpoints.VelocitySetpoint` in small steps ending in a clip:
+:class:`~companion.link.setpoints.VelocitySetpoint` in small steps ending in a clip:
 deadband -> expo -> scale -> clip. Inputs from misbehaving sources go through
 :func:`sanitize` first, so nothing non-finite or out of range ever reaches the vehicle.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from companion.config import CommandsConfig
-from companion.setpoints import VelocitySetpoint
+from companion.link.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 

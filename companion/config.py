@@ -11,7 +11,7 @@ from typing import Literal
 
 from pydantic import Field, PositiveInt, model_validator
 
-from companion.configio import Section, build, read_toml, section
+from colcommon.configio import Section, build, read_toml, section
 from companion.errors import ConfigError
 
 KNOWN_TOP_LEVEL = {"sitl", "companion", "experiment"}
@@ -100,7 +100,7 @@ class PerceptionConfig(Section):
 
 
 class LearnerConfig(Section):
-    """companion.learner: the paper's Update-Policy procedure (companion/learner.py)."""
+    """companion.learner: the paper's Update-Policy procedure (companion/learning/learner.py)."""
 
     hidden: tuple[PositiveInt, ...] = Field((130, 72, 40), min_length=1)
     init_std: float = Field(0.1, gt=0, description="std of the normal weight init; biases start at 0")

@@ -1,57 +1,33 @@
-"""Every error the project raises on purpose, in one hierarchy.
+"""The companion's errors: the project's one hierarchy, defined in :mod:`colcommon.errors`.
 
-Each message says what went wrong *and* what to do about it, so that a person at the field
-can act on it without reading the code.
+The SITL raises the same types without importing the companion; code and users of the
+companion keep importing them from here.
 """
 
-from __future__ import annotations
+from colcommon.errors import (
+    CameraError,
+    CheckpointError,
+    ColError,
+    CommandRejected,
+    ConfigError,
+    DatasetCorrupt,
+    InputDeviceError,
+    LinkError,
+    LinkLost,
+    LinkTimeout,
+    SimulatorError,
+)
 
-
-class ColError(Exception):
-    """Base class: anything the project raises deliberately."""
-
-
-class ConfigError(ColError, ValueError):
-    """A configuration file or value is invalid."""
-
-
-class LinkError(ColError):
-    """Base for problems talking MAVLink to the vehicle."""
-
-
-class LinkLost(LinkError):
-    """No telemetry from the vehicle for longer than the link timeout."""
-
-
-class LinkTimeout(LinkError):
-    """The vehicle did not answer in time (no heartbeat, no ACK)."""
-
-
-class CommandRejected(LinkError):
-    """The vehicle answered a command with a result other than ACCEPTED."""
-
-    def __init__(self, command: str, result: str, hint: str = "") -> None:
-        self.command = command
-        self.result = result
-        msg = f"vehicle rejected {command}: {result}"
-        super().__init__(f"{msg}. {hint}" if hint else msg)
-
-
-class CameraError(ColError):
-    """A camera source cannot be opened or has stopped delivering frames."""
-
-
-class DatasetCorrupt(ColError):
-    """A dataset file cannot be read as the documented CSV format."""
-
-
-class CheckpointError(ColError):
-    """A checkpoint file is missing, corrupt or incompatible with this version."""
-
-
-class SimulatorError(ColError):
-    """The SITL's control surface refused a request or cannot be reached."""
-
-
-class InputDeviceError(ColError):
-    """A human input device (gamepad, joystick) cannot be found or read."""
+__all__ = [
+    "ColError",
+    "ConfigError",
+    "LinkError",
+    "LinkLost",
+    "LinkTimeout",
+    "CommandRejected",
+    "CameraError",
+    "DatasetCorrupt",
+    "CheckpointError",
+    "SimulatorError",
+    "InputDeviceError",
+]

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from companion.errors import ConfigError
+from colcommon.errors import ConfigError
 from sitl.config import SitlConfig, load_sitl_config
 
 app = typer.Typer(add_completion=False, help=__doc__)
@@ -72,7 +72,7 @@ def build_config(
         data["network"]["control_port"] = control_port
     if no_camera:
         data["camera"]["enabled"] = False
-    from companion.configio import build
+    from colcommon.configio import build
 
     return build(SitlConfig, data, "command-line options")
 

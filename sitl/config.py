@@ -10,8 +10,8 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from companion.configio import Section, build, read_toml, section
-from companion.errors import ConfigError
+from colcommon.configio import Section, build, read_toml, section
+from colcommon.errors import ConfigError
 
 KNOWN_TOP_LEVEL = {"sitl", "companion", "experiment"}
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import jsbsim
 
-from companion.errors import ConfigError, SimulatorError
+from colcommon.errors import ConfigError, SimulatorError
 
 FT_M = 0.3048
 LBF_N = 4.4482216152605

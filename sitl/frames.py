@@ -3,7 +3,7 @@
 Each frame is a 32-byte little-endian header then the payload (raw BGR rows or JPEG):
 magic ``b"COLF"``, version u16 = 1, encoding u16 (0 raw, 1 JPEG), frame_number u32,
 time_boot_ms u32, width u16, height u16, payload_len u32, 8 reserved bytes (zero).
-Anything that does not fit raises :class:`~companion.errors.CameraError` saying what was wrong,
+Anything that does not fit raises :class:`~colcommon.errors.CameraError` saying what was wrong,
 so a reader can drop the connection and resynchronise by reconnecting.
 """
 
@@ -19,7 +19,7 @@ from typing import BinaryIO
 import cv2
 import numpy as np
 
-from companion.errors import CameraError
+from colcommon.errors import CameraError
 
 MAGIC = b"COLF"
 VERSION = 1

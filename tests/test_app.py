@@ -10,8 +10,8 @@ import pytest
 
 from companion.app import RunOptions, next_episode, open_run_camera, run_episodes
 from companion.config import CompanionConfig
-from companion.dataset import load_csv
 from companion.errors import CameraError, CheckpointError
+from companion.learning.dataset import load_csv
 from companion.simulator import SitlProcess
 
 
@@ -81,8 +81,8 @@ def test_an_unknown_pilot_fails_before_any_simulator_starts(tmp_path: Path, monk
 
 def test_a_resumed_run_folder_continues_from_its_newest_policy(tmp_path: Path) -> None:
     from companion.app import _resume_policy
-    from companion.checkpoint import save_checkpoint
-    from companion.policy import PolicyNet
+    from companion.learning.checkpoint import save_checkpoint
+    from companion.learning.policy import PolicyNet
 
     assert _resume_policy(tmp_path, 3) is None  # nothing to resume from
     (tmp_path / "checkpoints").mkdir()

@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 
 from companion import cli
 from companion.app import RunOptions, RunResult
-from companion.dataset import load_csv
-from companion.session import EpisodeRecord
+from companion.control.session import EpisodeRecord
+from companion.learning.dataset import load_csv
 from tests.conftest import wait_until
 
 

@@ -1,1 +1,2 @@
-"""The paper's experiment: synthetic participants, the grid of trials, reports (docs/experiment.md)."""
+"""The paper's experiment: synthetic participants, the grid of trials, the runner, results,
+statistics and the report (docs/experiment.md)."""

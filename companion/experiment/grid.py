@@ -18,10 +18,10 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
+from colcommon.configio import Section, build, read_toml, section
 from companion.config import CompanionConfig, load_companion_config
-from companion.configio import Section, build, read_toml, section
 from companion.errors import ConfigError
-from companion.experiment.pilots import PROFILES
+from companion.inputs.synthetic import PROFILES
 
 TrainCondition = Literal["demo", "int", "col"]
 TRAIN_CONDITIONS: tuple[TrainCondition, ...] = ("demo", "int", "col")

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from companion.commands import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.observation import Observation
+    from companion.vision.observation import Observation
 
 
 @dataclass(frozen=True)

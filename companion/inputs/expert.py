@@ -21,7 +21,7 @@ from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.pad_view import PadEstimate, estimate_pad, heading_velocity
 
 if TYPE_CHECKING:
-    from companion.observation import Observation
+    from companion.vision.observation import Observation
 
 
 def view_of(obs: Observation, cfg: PilotConfig) -> PadEstimate | None:

@@ -24,7 +24,7 @@ from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand, HumanInput
 
 if TYPE_CHECKING:
-    from companion.observation import Observation
+    from companion.vision.observation import Observation
 
 log = logging.getLogger(__name__)
 

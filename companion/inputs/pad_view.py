@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from companion.perception import PadDetection
+    from companion.vision.perception import PadDetection
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from companion.config import LinkConfig
 from companion.errors import ConfigError
 from companion.link.base import LinkStats, SetpointLimits, VehicleLink, VehicleSnapshot
 from companion.link.manual_control import ManualControlMessage
-from companion.setpoints import VelocitySetpoint
+from companion.link.setpoints import VelocitySetpoint
 
 LinkKind = Literal["pymavlink", "mavsdk"]
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from companion.link.manual_control import ManualControlMessage
-from companion.setpoints import VelocitySetpoint
+from companion.link.setpoints import VelocitySetpoint
 
 Vec3 = tuple[float, float, float]
 ManualControlCallback = Callable[[ManualControlMessage], None]

@@ -17,9 +17,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+import companion.link.px4_modes as px4_modes
 from companion.config import LinkConfig
 from companion.errors import CommandRejected, LinkLost, LinkTimeout
-from companion.link import px4_modes
 from companion.link.base import (
     LinkStats,
     ManualControlCallback,
@@ -29,8 +29,8 @@ from companion.link.base import (
 )
 from companion.link.connection import parse_connection
 from companion.link.mavlink_io import MavlinkIO
+from companion.link.setpoints import VelocitySetpoint
 from companion.link.waiters import Waiter
-from companion.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 

@@ -21,9 +21,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import companion.link.px4_modes as px4_modes
 from companion.config import LinkConfig
 from companion.errors import CommandRejected, ConfigError, LinkLost, LinkTimeout
-from companion.link import px4_modes
 from companion.link.async_runner import AsyncRunner
 from companion.link.base import (
     LinkStats,
@@ -46,7 +46,7 @@ from companion.link.mavsdk_convert import (
     route_mavsdk_log,
     translate_result,
 )
-from companion.setpoints import VelocitySetpoint
+from companion.link.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 MAV_CMD_REQUEST_MESSAGE = 512  # MAVLink common.xml

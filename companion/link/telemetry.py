@@ -12,7 +12,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.link import px4_modes
+import companion.link.px4_modes as px4_modes
 from companion.link.base import LANDED_STATES, VehicleSnapshot
 
 MAV_MODE_FLAG_SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED

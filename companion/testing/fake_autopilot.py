@@ -13,7 +13,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.link import px4_modes
+import companion.link.px4_modes as px4_modes
 
 BODY_VELOCITY_MASK = 0x5C7
 LANDED = {"UNDEFINED": 0, "ON_GROUND": 1, "IN_AIR": 2, "TAKEOFF": 3, "LANDING": 4}

@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 from companion.errors import CommandRejected
 from companion.link.base import LANDED_STATES, VehicleLink, VehicleSnapshot
-from companion.setpoints import VelocitySetpoint
+from companion.link.setpoints import VelocitySetpoint
 
 
 class LinkContractViolation(AssertionError):

@@ -1,0 +1,374 @@
+"""The episode loop: observation -> (person | policy) -> setpoint, at the control rate.
+
+One control step: read the frame (lockstep: wait for the SITL's frame marker; real time: a
+ticker at ``control_rate_hz``), build the observation, ask the person and the policy, let the
+arbiter choose, map to a body-velocity setpoint, send it (echoing the frame in lockstep), record
+the person's sample, then give the learner its turn. Episodes start through the simulator's
+control surface when there is one, else by flying to the start point; they end on touchdown or
+after ``max_steps``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from companion.commands import CommandMapper, JoystickCommand
+from companion.config import SessionConfig
+from companion.control.arbiter import Arbiter, Phase
+from companion.control.safety import Geofence, SetpointLimiter
+from companion.errors import ColError, LinkError, LinkLost
+from companion.inputs.base import HumanInput
+from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.policy import PolicySnapshot
+from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.setpoints import VelocitySetpoint
+from companion.simulator import SimulatorClient
+from companion.vision.observer import Observer
+
+log = logging.getLogger(__name__)
+HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+
+
+class PolicyRunner(Protocol):
+    """What the session needs of a learner runner (BudgetedLearner, LearnerThread)."""
+
+    @property
+    def latest_snapshot(self) -> PolicySnapshot: ...
+
+    @property
+    def error(self) -> BaseException | None: ...
+
+    def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot: ...
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One JSON line per episode (runs/<run>/episodes.jsonl)."""
+
+    episode: int
+    phase: str
+    seed: int | None
+    steps: int
+    human_samples: int
+    interventions: int
+    intervention_s: float
+    intervention_durations_s: tuple[float, ...]
+    outcome: str  # touchdown | timeout | fence | link_lost | error
+    success: bool | None
+    touchdown_distance_m: float | None
+    touchdown_speed_m_s: float | None
+    policy_version: int | None
+    dataset_size: int
+    sim_time_s: float
+    wall_time_s: float
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class Ticker:
+    """Real-time pacing at a fixed period, with the measured periods kept for reports."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.period_s = 1.0 / rate_hz
+        self._next = time.monotonic()
+        self.periods_s: list[float] = []
+        self._last: float | None = None
+
+    def wait(self) -> None:
+        self._next += self.period_s
+        delay = self._next - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        else:
+            self._next = time.monotonic()  # late: do not try to catch up with a burst
+        now = time.monotonic()
+        if self._last is not None:
+            self.periods_s.append(now - self._last)
+        self._last = now
+
+
+@dataclass
+class EpisodeParts:
+    """Everything an episode runner uses; built by the app, replaced by fakes in tests."""
+
+    link: VehicleLink
+    observer: Observer
+    mapper: CommandMapper
+    human: HumanInput
+    fence: Geofence
+    limiter: SetpointLimiter
+    cfg: SessionConfig
+    lockstep: bool
+    simulator: SimulatorClient | None = None
+    runner: PolicyRunner | None = None
+    dataset: HumanDataset | None = None
+
+
+class EpisodeRunner:
+    """Runs episodes with the given parts; one at a time, on the calling thread."""
+
+    def __init__(self, parts: EpisodeParts) -> None:
+        self.p = parts
+        self.arbiter = Arbiter()
+        self.period_s = 1.0 / parts.cfg.control_rate_hz
+        self._frame_ms = -1
+        self._ticker: Ticker | None = None
+        self._warned_learner = False
+        self._tick_start_s: float | None = None
+        self.step_latencies_s: list[float] = []
+
+    # ----- frames ----------------------------------------------------------------------------
+    def _next_snapshot(self) -> VehicleSnapshot | None:
+        """The next control step's telemetry, or None if the link is gone."""
+        link = self.p.link
+        if self.p.lockstep:
+            try:
+                snap = link.wait_frame(self._frame_ms, timeout_s=max(2.0, 4 * self.period_s))
+            except LinkLost:  # the link's way of saying "silent": recover like in real time
+                return None
+            if snap is not None:
+                self._frame_ms = int(snap.frame_time_boot_ms or snap.time_boot_ms)
+            return snap
+        if self._ticker is None:
+            self._ticker = Ticker(self.p.cfg.control_rate_hz)
+        self._ticker.wait()
+        return link.state() if link.link_alive() else None
+
+    def _send(self, sp: VelocitySetpoint) -> None:
+        echo = self._frame_ms if self.p.lockstep and self._frame_ms >= 0 else None
+        self.p.link.send_velocity_body(sp, echo_time_boot_ms=echo)
+
+    def _recover_link(self) -> VehicleSnapshot | None:
+        """Link lost: stop streaming, warn, wait for it to come back; None if it does not."""
+        log.warning("link lost: not streaming setpoints; the vehicle's failsafe holds. Waiting %.0f s",
+                    self.p.cfg.link_patience_s)
+        deadline = time.monotonic() + self.p.cfg.link_patience_s
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
+            if self.p.link.link_alive():
+                snap = self.p.link.state()
+                if snap is not None:
+                    log.warning("link back: resuming")
+                    if self.p.lockstep:
+                        self._frame_ms = -1
+                        snap = self._next_snapshot()
+                    return snap
+        return None
+
+    def _ensure_offboard(self, snap: VehicleSnapshot) -> VehicleSnapshot:
+        """Stream, then switch to OFFBOARD. The switch is asked before this frame's answer, so in
+        lockstep it lands in a known frame (the heartbeat may show it only later)."""
+        if snap.mode == "OFFBOARD":
+            return snap
+        if not snap.armed:
+            self.p.link.arm()
+        self._send(HOLD)
+        nxt = self._next_snapshot()
+        if nxt is None:
+            raise LinkError("lost the vehicle while entering OFFBOARD")
+        self.p.link.set_mode("OFFBOARD")  # raises CommandRejected with the reason if refused
+        return nxt
+
+    # ----- episode start -----------------------------------------------------------------------
+    def _start(self, seed: int | None) -> tuple[VehicleSnapshot, list[str]]:
+        notes: list[str] = []
+        if self.p.simulator is not None:
+            reply = self.p.simulator.reset(seed)
+            self._frame_ms = int(reply["time_boot_ms"])
+            snap = self._wait_telemetry_after(self._frame_ms)
+        else:
+            snap = self._fly_to_start(seed)
+            notes.append("started by flying to the start point")
+        return self._ensure_offboard(snap), notes
+
+    def _wait_telemetry_after(self, time_boot_ms: int) -> VehicleSnapshot:
+        for _ in range(100):
+            snap = self._next_snapshot()
+            if snap is None:
+                raise LinkError("no telemetry after the episode reset")
+            if snap.time_boot_ms > time_boot_ms and snap.in_air:
+                return snap
+            if self.p.lockstep:
+                self._send(HOLD)
+        raise LinkError("the vehicle did not report being in the air after the reset")
+
+    def _fly_to_start(self, seed: int | None) -> VehicleSnapshot:
+        """As on a real vehicle: arm, take off, fly to a random start above the pad."""
+        cfg = self.p.cfg
+        rng = np.random.default_rng(seed)
+        pad = np.asarray(cfg.pad_ned_m, dtype=float)
+        start = pad + np.array([*rng.uniform(-cfg.start_xy_range_m, cfg.start_xy_range_m, 2), -cfg.start_height_above_pad_m])
+        snap = self._next_snapshot()
+        if snap is None:
+            raise LinkError("no telemetry: cannot start the episode")
+        if not snap.in_air:
+            self.p.link.arm()
+            self.p.link.takeoff(cfg.takeoff_alt_m)
+            for _ in range(int(30 * cfg.control_rate_hz)):
+                snap = self._next_snapshot()
+                if snap is not None and snap.in_air and -snap.position_ned_m[2] > 0.8 * cfg.takeoff_alt_m:
+                    break
+        return self._goto(start, snap)
+
+    def _goto(self, target: np.ndarray, snap: VehicleSnapshot | None) -> VehicleSnapshot:
+        yaw = 0.0
+        for i in range(int(60 * self.p.cfg.control_rate_hz)):
+            if snap is None:
+                raise LinkError("lost the vehicle while flying to the start point")
+            echo = self._frame_ms if self.p.lockstep else None
+            north, east, down = (float(v) for v in target)
+            self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
+            if i == 2 and snap.mode != "OFFBOARD":
+                self.p.link.set_mode("OFFBOARD")
+            err = float(np.linalg.norm(np.asarray(snap.position_ned_m) - target))
+            speed = float(np.linalg.norm(snap.velocity_ned_m_s))
+            if i > 3 and err < self.p.cfg.start_tolerance_m and speed < 0.3:
+                return snap
+            snap = self._next_snapshot()
+        raise ColError(f"did not reach the start point {target.round(2).tolist()} within 60 s")
+
+    # ----- the loop --------------------------------------------------------------------------
+    def _policy_command(self, obs_vector: np.ndarray) -> tuple[JoystickCommand, int | None]:
+        runner = self.p.runner
+        if runner is None:
+            return JoystickCommand.neutral(), None
+        if runner.error is not None and not self._warned_learner:
+            self._warned_learner = True
+            log.error("learner failed (%s); flying the last good policy", runner.error)
+        snap = runner.latest_snapshot
+        return self.p.mapper.command_from_values(snap.act(obs_vector)), snap.version
+
+    def run(self, episode: int, phase: Phase, seed: int | None) -> EpisodeRecord:
+        """Fly one episode; never raises for what happens in flight (it is in the record)."""
+        wall0 = time.monotonic()
+        self.arbiter.reset()
+        self.p.human.reset()
+        self.p.limiter.reset()
+        try:
+            first, notes = self._start(seed)
+        except ColError as exc:  # refused reset, no OFFBOARD, lost vehicle: this episode only
+            log.error("episode %d could not start: %s", episode, exc)
+            return self._record(episode, phase, seed, 0, "error", None, None, 0, wall0, [f"start failed: {exc}"])
+        t0_ms = first.time_boot_ms
+        snap: VehicleSnapshot | None = first
+        outcome, version, steps = "timeout", None, 0
+        try:
+            outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
+        except ColError as exc:
+            log.error("episode %d ended by an error: %s", episode, exc)
+            outcome = "error"
+            notes.append(f"error: {exc}")
+        return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
+
+    def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
+             t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
+        """The control loop of one episode: (outcome, policy version, steps, last snapshot)."""
+        outcome, version, steps = "timeout", None, 0
+        for step in range(self.p.cfg.max_steps):
+            if snap is None:
+                snap = self._recover_link()
+                if snap is None:
+                    outcome = "link_lost"
+                    break
+                snap = self._ensure_offboard(snap)
+            if step > 0 and snap.landed_state == "ON_GROUND":
+                outcome = "touchdown"
+                break
+            steps = step + 1
+            outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
+            if outcome_now is not None:
+                outcome = outcome_now
+                break
+            if self.p.runner is not None:
+                self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
+            snap = self._next_snapshot()
+        return outcome, version, steps, snap
+
+    # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
+    def begin(self, seed: int | None) -> VehicleSnapshot:
+        """Start an episode as :meth:`run` does (reset or fly to the start, then OFFBOARD) and
+        return its first frame; the caller then answers each frame with :meth:`answer`."""
+        self.arbiter.reset()
+        self.p.human.reset()
+        self.p.limiter.reset()
+        return self._start(seed)[0]
+
+    def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
+        """Answer the current frame with ``command`` (None: hold), mapped and limited as in
+        :meth:`run`; returns the next frame's telemetry, or None if the link is gone."""
+        if command is None:
+            self._send(HOLD)
+        else:
+            self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s))
+        return self._next_snapshot()
+
+    def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
+                      t0_ms: int) -> tuple[str | None, int | None]:
+        t_start = self._tick_start_s = time.perf_counter()
+        try:
+            obs = self.p.observer.observe(snap, self.p.lockstep)
+            vector = obs.to_vector()
+        except ValueError as exc:  # non-finite telemetry: hold this step
+            log.warning("step %d: unusable telemetry (%s); holding", step, exc)
+            self._send(HOLD)
+            return None, None
+        fence = self.p.fence.check(obs.position_ned_m)
+        if not fence.inside:
+            log.warning("geofence: %s; holding and ending the episode", fence.reason)
+            self._send(HOLD)
+            try:
+                self.p.link.set_mode("AUTO.LOITER")
+            except ColError as exc:
+                log.error("could not switch to hold: %s", exc)
+            return "fence", None
+        human = self.p.human.read(obs)
+        policy_cmd, version = self._policy_command(vector)
+        decision = self.arbiter.decide(phase, human, policy_cmd)
+        sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
+        self._send(sp)
+        self.step_latencies_s.append(time.perf_counter() - t_start)
+        if decision.record and self.p.dataset is not None:
+            source = Source.DEMONSTRATION if decision.tag == "demonstration" else Source.INTERVENTION
+            self.p.dataset.append(Sample(episode, step, (obs.time_boot_ms - t0_ms) / 1000.0, source, vector,
+                                         decision.command.to_array()))
+        return None, version
+
+    def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
+                version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
+                notes: list[str]) -> EpisodeRecord:
+        summary = self.arbiter.summary()
+        success = distance = speed = None
+        if self.p.simulator is not None:
+            try:
+                td = self.p.simulator.truth().get("touchdown")
+            except ColError as exc:
+                notes.append(f"no ground truth: {exc}")
+                td = None
+            if td is not None and outcome == "touchdown":
+                success, distance, speed = bool(td["success"]), float(td["distance_to_pad_m"]), float(td["speed_m_s"])
+            elif outcome != "touchdown":
+                success = False
+        elif snap is not None and outcome == "touchdown":
+            pad = self.p.cfg.pad_ned_m
+            distance = math.hypot(snap.position_ned_m[0] - pad[0], snap.position_ned_m[1] - pad[1])
+            notes.append("touchdown distance estimated from the vehicle's position")
+        durations = summary.durations_s(self.period_s)
+        sim_s = ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0
+        return EpisodeRecord(
+            episode=episode, phase=phase.value, seed=seed, steps=steps,
+            human_samples=summary.recorded_steps, interventions=summary.interventions,
+            intervention_s=round(sum(durations), 3), intervention_durations_s=tuple(round(d, 3) for d in durations),
+            outcome=outcome, success=success,
+            touchdown_distance_m=None if distance is None else round(distance, 4),
+            touchdown_speed_m_s=None if speed is None else round(speed, 4),
+            policy_version=version, dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
+            sim_time_s=round(sim_s, 3), wall_time_s=round(time.monotonic() - wall0, 3), notes=tuple(notes),
+        )

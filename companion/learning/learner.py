@@ -1,0 +1,219 @@
+"""The paper's Update-Policy procedure (Algorithm 1): supervised updates on the human dataset.
+
+``Learner`` owns the model, RMSProp and the MSE loss. ``step()`` is one plain, deterministic
+update (seeded minibatch); ``train_until_converged()`` is the paper's loop - whenever the dataset
+holds new samples, update until the minibatch loss is below the threshold or the round reaches
+``max_updates`` - and can stop after a budget of updates and resume where it was.
+
+After updates the learner publishes an immutable :class:`PolicySnapshot` with one assignment;
+``latest_snapshot`` is read by the control loop without any lock. How the loop is *run* lives
+apart, in :mod:`companion.learning.runners` (budgeted, thread) and
+:mod:`companion.learning.learner_process` (a child process).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from dataclasses import dataclass
+from enum import Enum
+from typing import Protocol
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from companion.config import LearnerConfig
+from companion.errors import ConfigError
+from companion.learning.dataset import DatasetView
+from companion.learning.policy import Normalisation, PolicyNet, PolicySnapshot
+from companion.vision.observation import OBS_DIM
+
+log = logging.getLogger(__name__)
+
+
+class SampleSource(Protocol):
+    """What the learner needs from a dataset (HumanDataset provides it)."""
+
+    def __len__(self) -> int: ...
+
+    def view(self) -> DatasetView: ...
+
+    def wait_for_growth(self, known: int, timeout_s: float) -> int: ...
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What one call of ``train_until_converged`` did."""
+
+    updates: int
+    loss: float
+    converged: bool
+    round_updates: int
+    capped: bool
+    dataset_size: int
+
+
+class Learner:
+    """Model + RMSProp + MSE on the human dataset; publishes snapshots.
+
+    Not meant to be stepped from two threads at once (a lock serialises it anyway); the
+    snapshot it publishes may be read from any thread at any time.
+    """
+
+    def __init__(
+        self,
+        config: LearnerConfig,
+        dataset: SampleSource,
+        *,
+        obs_dim: int = OBS_DIM,
+        normalisation: Normalisation | None = None,
+        initial: PolicySnapshot | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        self.config = config
+        self.dataset = dataset
+        self.rng = rng if rng is not None else np.random.default_rng(config.seed)
+        self.model = self._make_model(config, obs_dim, normalisation, initial)
+        self.optimizer = torch.optim.RMSprop(
+            self.model.parameters(), lr=config.learning_rate, foreach=True
+        )
+        self.updates = initial.version if initial else 0
+        self.last_loss = math.nan
+        self._lock = threading.RLock()
+        self._trained_size = initial.dataset_size_trained if initial else 0
+        self._round_size = 0
+        self._round_updates = 0
+        self._converged = False
+        self._since_publish = 0
+        self._latest = self.model.snapshot(self.updates, self._trained_size)
+
+    @staticmethod
+    def _make_model(config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
+                    initial: PolicySnapshot | None) -> PolicyNet:
+        if initial is not None:
+            if initial.obs_dim != obs_dim or initial.hidden != tuple(config.hidden):
+                raise ConfigError(
+                    f"initial policy is {initial.obs_dim}->{initial.hidden}, the config asks for "
+                    f"{obs_dim}->{tuple(config.hidden)}; start fresh or use a matching config"
+                )
+            return PolicyNet.from_snapshot(initial)
+        generator = torch.Generator().manual_seed(config.seed)
+        return PolicyNet(obs_dim, config.hidden, init_std=config.init_std, generator=generator,
+                         normalisation=normalisation)
+
+    # -- the update ---------------------------------------------------------------------
+    def step(self) -> float:
+        """One update on a minibatch drawn with replacement; returns its MSE before the update.
+
+        Raises ValueError on an empty dataset and FloatingPointError on a non-finite loss
+        (the weights are left untouched, so the last snapshot stays good).
+        """
+        with self._lock:
+            view = self.dataset.view()
+            n = len(view)
+            if n == 0:
+                raise ValueError("the dataset is empty; record samples before training")
+            idx = self.rng.integers(0, n, size=self.config.batch_size)
+            obs = torch.from_numpy(view.obs[idx])
+            target = torch.from_numpy(view.actions[idx])
+            loss = F.mse_loss(self.model(obs), target)
+            value = float(loss.item())
+            if not math.isfinite(value):
+                raise FloatingPointError(
+                    f"training loss became {value} at update {self.updates + 1}; check the "
+                    "dataset for extreme observations or lower learning_rate"
+                )
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            self.updates += 1
+            self._trained_size = n
+            self._since_publish += 1
+            self.last_loss = value
+            return value
+
+    # -- the paper's loop ---------------------------------------------------------------
+    @property
+    def has_work(self) -> bool:
+        """New samples exist, or the current round has neither converged nor hit the cap."""
+        if len(self.dataset) > self._round_size:
+            return True
+        return self._round_size > 0 and not self._converged and not self._capped
+
+    @property
+    def _capped(self) -> bool:
+        return self._round_updates >= self.config.max_updates
+
+    @property
+    def round_size(self) -> int:
+        """Dataset size at which the current round (re)started."""
+        return self._round_size
+
+    def _restart_round_if_new_samples(self) -> None:
+        n = len(self.dataset)
+        if n > self._round_size:
+            self._round_size, self._round_updates, self._converged = n, 0, False
+
+    def train_until_converged(self, budget: int | None = None, *,
+                              publish_at_end: bool = True) -> TrainResult:
+        """Run the paper's loop for at most ``budget`` updates (None: until the round ends).
+
+        Publishes a snapshot every ``publish_every_updates`` updates, right after the first
+        update that saw new samples, when the round ends, and (``publish_at_end``) at the end
+        of the call if anything changed.
+        """
+        with self._lock:
+            done = 0
+            while budget is None or done < budget:
+                self._restart_round_if_new_samples()
+                if not self.has_work:
+                    break
+                loss = self.step()
+                done += 1
+                self._round_updates += 1
+                self._converged = loss < self.config.loss_threshold
+                if self._should_publish():
+                    self.publish()
+            if self._since_publish and (publish_at_end or not self.has_work):
+                self.publish()
+            return TrainResult(done, self.last_loss, self._converged, self._round_updates,
+                               self._capped and not self._converged, len(self.dataset))
+
+    def _should_publish(self) -> bool:
+        fresh_data = self._trained_size > self._latest.dataset_size_trained
+        return fresh_data or self._since_publish >= self.config.publish_every_updates
+
+    # -- snapshots ----------------------------------------------------------------------
+    def publish(self) -> PolicySnapshot:
+        """Copy the weights into a new snapshot and swap it in with one assignment."""
+        with self._lock:
+            snap = self.model.snapshot(self.updates, self._trained_size)
+            self._latest = snap
+            self._since_publish = 0
+            return snap
+
+    @property
+    def latest_snapshot(self) -> PolicySnapshot:
+        """The newest complete snapshot; never waits for training."""
+        return self._latest
+
+    def adopt(self, snapshot: PolicySnapshot) -> None:
+        """Make a snapshot trained elsewhere (the learner process) this learner's latest.
+
+        One assignment, cheap enough for the control tick, so checkpoints and ``latest_snapshot``
+        see the process's training. The torch model here is not changed: to train in this
+        process afterwards, build a new Learner with ``initial=snapshot``.
+        """
+        self._latest = snapshot
+
+
+class LearnerState(Enum):
+    """Life of the learner thread; FAILED and STOPPED are final."""
+
+    NEW = "new"
+    IDLE = "idle"
+    TRAINING = "training"
+    FAILED = "failed"
+    STOPPED = "stopped"

@@ -1,0 +1,210 @@
+"""The landing task as a Gymnasium environment, over the real MAVLink path to a lockstep SITL.
+
+One ``step`` is one control tick of the session: the action becomes a JoystickCommand, goes
+through the same CommandMapper and SetpointLimiter as a person's or the policy's command, and
+answers the SITL's frame; the observation is the paper's 15 values
+(:meth:`companion.vision.observation.Observation.to_vector`) of the next frame. The reward is sparse,
+as in the paper: 1 on a touchdown the SITL's ground truth judges successful, else 0.
+
+Action subsets (the paper's PPO baselines), each value in [-1, 1]:
+
+* 2 -- (pitch, roll); throttle held at a constant descent, yaw 0;
+* 3 -- (pitch, roll, throttle); yaw 0;
+* 4 -- (pitch, roll, throttle, yaw).
+
+``reset(seed=s)`` starts the SITL's episode ``s`` (the same starts as ``col eval --seed s``);
+``reset()`` without a seed continues with the next seed (the first is ``session.seed``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from companion.app import NoHuman, RunOptions, open_run_camera, simulator_client, vehicle_connection
+from companion.commands import CommandMapper
+from companion.config import CompanionConfig
+from companion.control.safety import Geofence, SetpointLimiter
+from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.errors import ColError, ConfigError, LinkError
+from companion.link import open_link
+from companion.link.base import VehicleSnapshot
+from companion.simulator import SimulatorClient
+from companion.vision.observation import OBS_DIM, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP
+from companion.vision.observer import Observer
+from companion.vision.perception import PadDetector
+
+log = logging.getLogger(__name__)
+ACTION_AXES: tuple[str, ...] = ("pitch", "roll", "throttle", "yaw")
+"""What the action's entries control, in order; an n-action env controls the first n."""
+DESCENT_THROTTLE = -0.5
+"""Constant throttle stick of the 2-action task: about 0.47 m/s down with the default
+commands (deadband 0.05, v_z_max 1 m/s), 8 m to the pad in about 180 steps."""
+
+
+def observation_space() -> gym.spaces.Box:
+    """Telemetry is never clipped (unbounded); the pad's three values have documented ranges."""
+    low = np.full(OBS_DIM, -np.inf, dtype=np.float32)
+    high = np.full(OBS_DIM, np.inf, dtype=np.float32)
+    low[-3:] = (-PAD_CENTRE_CLIP, -PAD_CENTRE_CLIP, -1.0)
+    high[-3:] = (PAD_CENTRE_CLIP, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP)
+    return gym.spaces.Box(low, high, dtype=np.float32)
+
+
+def stick_values(action: np.ndarray, action_dims: int, descent_throttle: float) -> np.ndarray:
+    """An action of ``action_dims`` values -> the four sticks (roll, pitch, yaw, throttle)."""
+    a = np.asarray(action, dtype=np.float64).reshape(-1)
+    if a.shape != (action_dims,):
+        raise ValueError(f"expected an action of {action_dims} values {ACTION_AXES[:action_dims]}, got shape {a.shape}")
+    pitch, roll = a[0], a[1]
+    throttle = a[2] if action_dims >= 3 else descent_throttle
+    yaw = a[3] if action_dims == 4 else 0.0
+    return np.array([roll, pitch, yaw, throttle])
+
+
+class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Land on the pad from the paper's starts; one step = one control tick in lockstep.
+
+    Without ``connection`` it starts its own lockstep SITL (stopped by :meth:`close`). With
+    ``connection`` (a MAVLink connection string to a lockstep SITL) it also needs
+    ``simulator`` (HOST:PORT of that SITL's control surface) for resets and ground truth.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}
+
+    def __init__(self, action_dims: int = 2, cfg: CompanionConfig | None = None, *,
+                 descent_throttle: float = DESCENT_THROTTLE, connection: str | None = None,
+                 simulator: str | None = None, config_path: Path | None = None) -> None:
+        if action_dims not in (2, 3, 4):
+            raise ConfigError(f"action_dims must be 2 (pitch, roll), 3 (+ throttle) or 4 (+ yaw), got {action_dims}")
+        if not -1.0 <= descent_throttle <= 0.0:
+            raise ConfigError(f"descent_throttle is a stick value in [-1, 0] (down), got {descent_throttle}")
+        if connection is not None and simulator is None:
+            raise ConfigError("an external SITL needs --simulator HOST:PORT too: resets and the reward come from its control surface")
+        self.cfg = cfg or CompanionConfig()
+        self.action_dims = action_dims
+        self.descent_throttle = descent_throttle
+        self.max_steps = self.cfg.session.max_steps
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (action_dims,), dtype=np.float32)
+        self.observation_space = observation_space()
+        self._stack = contextlib.ExitStack()
+        try:
+            self._runner, self._simulator = self._connect(RunOptions(connection=connection, simulator=simulator,
+                                                                     config_path=config_path))
+        except BaseException:
+            self._stack.close()
+            raise
+        self._next_seed = self.cfg.session.seed
+        self._seed: int | None = None
+        self._steps = 0
+        self._done = True
+        self._last_obs = np.zeros(OBS_DIM, dtype=np.float32)
+
+    def _connect(self, opts: RunOptions) -> tuple[EpisodeRunner, SimulatorClient]:
+        """SITL (ours or given), link, control surface and camera, as ``col eval`` wires them."""
+        connection, sitl = self._stack.enter_context(vehicle_connection(self.cfg, opts, lockstep=True))
+        link = open_link(self.cfg.link.model_copy(update={"connection": connection}))
+        self._stack.callback(link.close)
+        link.connect(timeout_s=30.0)
+        simulator = simulator_client(opts, sitl)
+        assert simulator is not None  # ours, or the --simulator given (checked in __init__)
+        self._stack.callback(simulator.close)
+        camera = open_run_camera(self.cfg, sitl, link)
+        if camera is not None:
+            self._stack.callback(camera.close)
+        parts = EpisodeParts(
+            link=link, observer=Observer(camera, PadDetector(self.cfg.perception), (320, 240), self.cfg.perception.frame_timeout_s),
+            mapper=CommandMapper(self.cfg.commands), human=NoHuman(), fence=Geofence.from_config(self.cfg.safety),
+            limiter=SetpointLimiter(self.cfg.commands, self.cfg.safety), cfg=self.cfg.session, lockstep=True,
+            simulator=simulator,
+        )
+        runner = EpisodeRunner(parts)
+        # The first start after the SITL connects is handed over from real-time pacing and
+        # differs slightly from all later ones: fly it once so that every reset(seed) repeats.
+        runner.begin(None)
+        return runner, simulator
+
+    # ----- Gymnasium API ---------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        start_seed = self._next_seed if seed is None else int(seed)
+        self._next_seed = start_seed + 1
+        self._seed, self._steps, self._done = start_seed, 0, False
+        snap = self._start(start_seed)
+        obs = self._observe(snap)
+        return obs, {"seed": start_seed}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._done:
+            raise ColError("the episode has ended: call reset() before step()")
+        values = stick_values(action, self.action_dims, self.descent_throttle)
+        command = self._runner.p.mapper.command_from_values(values)
+        snap = self._runner.answer(command)
+        self._steps += 1
+        if snap is None:  # no frame in time (a starved SITL): cut the episode short, not a failure
+            log.warning("step %d: no frame from the SITL in time; truncating the episode", self._steps)
+            self._done = True
+            return self._last_obs.copy(), 0.0, False, True, self._info("link_lost")
+        obs = self._observe(snap)
+        outcome = self._outcome(snap)
+        terminated = outcome is not None
+        truncated = not terminated and self._steps >= self.max_steps
+        self._done = terminated or truncated
+        info = self._info("timeout" if truncated else outcome)
+        return obs, 1.0 if info["success"] else 0.0, terminated, truncated, info
+
+    def ground_truth(self) -> dict[str, Any]:
+        """The SITL's truth (vehicle and pad NED, touchdown): for tests and diagnostics; the
+        agent never sees it."""
+        return self._simulator.truth()
+
+    def close(self) -> None:
+        """Stop the link, camera and (our) SITL; safe to call twice."""
+        self._done = True
+        self._stack.close()
+
+    # ----- pieces ----------------------------------------------------------------------------
+    def _start(self, seed: int, attempts: int = 3) -> VehicleSnapshot:
+        """The episode's first frame; a SITL starved of CPU may miss one start, so try again."""
+        for attempt in range(1, attempts + 1):
+            try:
+                return self._runner.begin(seed)
+            except LinkError as exc:
+                if attempt == attempts:
+                    raise
+                log.warning("episode start %d failed (%s); trying again", seed, exc)
+        raise AssertionError("unreachable")
+
+    def _observe(self, snap: VehicleSnapshot) -> np.ndarray:
+        """The 15 values of this frame; non-finite telemetry repeats the last good ones."""
+        try:
+            vector = self._runner.p.observer.observe(snap, lockstep=True).to_vector()
+        except ValueError as exc:
+            log.warning("step %d: unusable telemetry (%s); repeating the last observation", self._steps, exc)
+            return self._last_obs.copy()
+        self._last_obs = vector
+        return vector.copy()
+
+    def _outcome(self, snap: VehicleSnapshot) -> str | None:
+        """"touchdown", "fence" (left the geofence: a failure) or None (still flying)."""
+        if snap.landed_state == "ON_GROUND":
+            return "touchdown"
+        if not self._runner.p.fence.check(snap.position_ned_m).inside:
+            return "fence"
+        return None
+
+    def _info(self, outcome: str | None) -> dict[str, Any]:
+        """What happened, from the SITL's ground truth once the episode has ended."""
+        info: dict[str, Any] = {"seed": self._seed, "steps": self._steps, "outcome": outcome, "success": False,
+                                "touchdown_distance_m": None}
+        if outcome == "touchdown":
+            touchdown = self._simulator.truth().get("touchdown")
+            if touchdown is not None:
+                info["success"] = bool(touchdown["success"])
+                info["touchdown_distance_m"] = round(float(touchdown["distance_to_pad_m"]), 4)
+        return info

@@ -1,0 +1,93 @@
+"""One frame of telemetry and one camera image become one observation.
+
+The camera may be missing or dead during flight: then the pad is "not visible" and a warning
+is logged (rate-limited), never a crash. In lockstep the image of frame T is asked for by its
+stamp, so the agent decides step T on what the camera saw at T.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from companion.link.base import VehicleSnapshot
+from companion.vision.camera import CameraSource
+from companion.vision.observation import Observation
+from companion.vision.perception import PadDetection, PadDetector
+from sitl.frames import Frame
+
+log = logging.getLogger(__name__)
+WARN_EVERY_S = 5.0
+STALE_AFTER_TICKS = 3  # the camera runs at least at the control rate
+
+
+class Observer:
+    """Builds observations from link snapshots and camera frames."""
+
+    def __init__(self, camera: CameraSource | None, detector: PadDetector, image_size_px: tuple[int, int],
+                 frame_timeout_s: float = 0.2) -> None:
+        self.camera = camera
+        self.detector = detector
+        self.image_size_px = image_size_px
+        self.frame_timeout_s = frame_timeout_s
+        self.frames_missing = 0
+        self.detect_errors = 0
+        self.frames_stale = 0
+        self._last_frame_number: int | None = None
+        self._repeats = 0
+        self._last_warning_s = -WARN_EVERY_S
+
+    def _warn(self, message: str) -> None:
+        now = time.monotonic()
+        if now - self._last_warning_s >= WARN_EVERY_S:
+            self._last_warning_s = now
+            log.warning("%s (pad counted as not visible; %d frames so far)", message, self.frames_missing)
+
+    def detect(self, time_boot_ms: int | None) -> PadDetection | None:
+        """The pad in the frame stamped ``time_boot_ms`` (or the newest frame), or None."""
+        if self.camera is None:
+            self.frames_missing += 1
+            return None
+        if time_boot_ms is None:
+            frame = self._fresh(self.camera.latest())
+        else:
+            frame = self.camera.frame_at(time_boot_ms, self.frame_timeout_s)
+        if frame is None:
+            self.frames_missing += 1
+            self._warn("no camera frame for this control step")
+            return None
+        self.image_size_px = (frame.image.shape[1], frame.image.shape[0])
+        try:
+            return self.detector.detect(frame.image)
+        except ValueError as exc:  # a corrupt image: judged not visible
+            self.detect_errors += 1
+            self._warn(f"camera frame unusable: {exc}")
+            return None
+
+    def _fresh(self, frame: Frame | None) -> Frame | None:
+        """Real time: a stream that stays connected but stops sending keeps handing out its
+        last frame; after STALE_AFTER_TICKS control steps with no new frame, that is no frame."""
+        if frame is None:
+            return None
+        if frame.frame_number == self._last_frame_number:
+            self._repeats += 1
+            if self._repeats >= STALE_AFTER_TICKS:
+                self.frames_stale += 1
+                return None
+        else:
+            self._last_frame_number, self._repeats = frame.frame_number, 0
+        return frame
+
+    def observe(self, snapshot: VehicleSnapshot, lockstep: bool) -> Observation:
+        """The observation for ``snapshot``; ValueError if its telemetry is not finite."""
+        stamp = snapshot.frame_time_boot_ms if lockstep else None
+        pad = self.detect(stamp)
+        return Observation(
+            position_ned_m=snapshot.position_ned_m,
+            attitude_rad=snapshot.attitude_rad,
+            velocity_ned_m_s=snapshot.velocity_ned_m_s,
+            rates_frd_rad_s=snapshot.rates_frd_rad_s,
+            pad=pad,
+            image_size_px=self.image_size_px,
+            time_boot_ms=max(0, int(snapshot.frame_time_boot_ms if lockstep and snapshot.frame_time_boot_ms is not None else snapshot.time_boot_ms)),
+        )

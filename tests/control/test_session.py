@@ -1,0 +1,304 @@
+"""The episode loop's logic on an in-memory vehicle: who flies, what is recorded, safety."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from companion.commands import CommandMapper, JoystickCommand
+from companion.config import CompanionConfig
+from companion.control.arbiter import Phase
+from companion.control.safety import Geofence, SetpointLimiter
+from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.errors import LinkLost
+from companion.inputs.base import HumanCommand, HumanInput
+from companion.learning.dataset import HumanDataset, Source
+from companion.learning.policy import PolicyNet
+from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.setpoints import VelocitySetpoint
+from companion.vision.observation import Observation
+from companion.vision.observer import Observer
+from companion.vision.perception import PadDetector
+
+FRAME_MS = 95
+
+
+class KinematicLink(VehicleLink):
+    """Lockstep frames from a point mass that follows the last body-velocity setpoint."""
+
+    def __init__(self, start_ned: tuple[float, float, float] = (0.0, 0.0, -3.0)) -> None:
+        self.pos = np.array(start_ned, dtype=float)
+        self.vel = np.zeros(3)
+        self.t_ms = 0
+        self.mode = "AUTO.LOITER"
+        self.armed = True
+        self.sent: list[tuple[VelocitySetpoint, int | None]] = []
+        self.modes: list[str] = []
+        self.silent_frames: set[int] = set()
+        self.alive = True
+        self.frame = 0
+
+    def _snap(self) -> VehicleSnapshot:
+        landed = "ON_GROUND" if self.pos[2] >= 0 else "IN_AIR"
+        return VehicleSnapshot(0.0, self.t_ms, self.t_ms, 1, "PX4", self.armed, self.mode, landed,
+                               tuple(self.pos), tuple(self.vel), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, True, True)
+
+    def wait_frame(self, after_time_boot_ms: int, timeout_s: float) -> VehicleSnapshot | None:
+        self.frame += 1
+        if self.frame in self.silent_frames:
+            self.alive = False
+            return None
+        self.alive = True
+        self.t_ms += FRAME_MS
+        self.pos = self.pos + self.vel * FRAME_MS / 1000
+        self.pos[2] = min(self.pos[2], 0.0)
+        return self._snap()
+
+    def send_velocity_body(self, sp: VelocitySetpoint, echo_time_boot_ms: int | None = None) -> None:
+        self.sent.append((sp, echo_time_boot_ms))
+        self.vel = np.array([sp.forward_m_s, sp.right_m_s, sp.down_m_s])
+
+    def set_mode(self, name: str) -> None:
+        self.modes.append(name)
+        self.mode = name
+
+    def state(self) -> VehicleSnapshot | None:
+        return self._snap()
+
+    def link_alive(self) -> bool:
+        return self.alive
+
+    def connect(self, timeout_s: float = 10.0) -> VehicleSnapshot:
+        return self._snap()
+
+    def close(self) -> None: ...
+    def arm(self) -> None:
+        self.armed = True
+
+    def disarm(self) -> None:
+        self.armed = False
+
+    def takeoff(self, alt_m: float) -> None: ...
+    def land(self) -> None: ...
+    def send_position_ned(self, *args: float, echo_time_boot_ms: int | None = None) -> None: ...
+    def request_rates(self, rates_hz: Mapping[str, float] | None = None) -> dict[str, str]:
+        return {}
+
+    def on_manual_control(self, callback) -> None: ...  # type: ignore[no-untyped-def]
+    def stats(self):  # type: ignore[no-untyped-def]
+        return None
+
+    def request_message(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        return None
+
+
+class FakeSimulator:
+    """The control surface's reset and truth, for the kinematic vehicle."""
+
+    def __init__(self, link: KinematicLink) -> None:
+        self.link = link
+        self.resets: list[int | None] = []
+
+    def reset(self, seed: int | None = None) -> dict:
+        self.resets.append(seed)
+        return {"time_boot_ms": self.link.t_ms}
+
+    def truth(self) -> dict:
+        return {"touchdown": None}
+
+
+class ScriptedHuman(HumanInput):
+    """Descends; holds the override on the steps listed."""
+
+    def __init__(self, override_steps: set[int]) -> None:
+        self.override_steps = override_steps
+        self.step = -1
+
+    def reset(self) -> None:
+        self.step = -1
+
+    def read(self, obs: Observation) -> HumanCommand:
+        self.step += 1
+        return HumanCommand(JoystickCommand(0.0, 0.5, 0.0, -1.0), self.step in self.override_steps)
+
+
+class Runner:
+    def __init__(self, snapshot, error=None) -> None:  # type: ignore[no-untyped-def]
+        self.latest_snapshot = snapshot
+        self.error = error
+        self.steps = 0
+
+    def on_control_step(self, tick_start_s=None):  # type: ignore[no-untyped-def]
+        self.steps += 1
+        return self.latest_snapshot
+
+
+def make_runner(link: KinematicLink, human: HumanInput, *, runner=None, fence_radius_m: float = 30.0,  # type: ignore[no-untyped-def]
+                max_steps: int = 60) -> tuple[EpisodeRunner, HumanDataset]:
+    cfg = CompanionConfig()
+    session = cfg.session.model_copy(update={"max_steps": max_steps})
+    dataset = HumanDataset(None)
+    parts = EpisodeParts(
+        link=link, observer=Observer(None, PadDetector(), (320, 240)), mapper=CommandMapper(cfg.commands), human=human,
+        fence=Geofence(fence_radius_m, -1.0, 25.0), limiter=SetpointLimiter(cfg.commands, cfg.safety),
+        cfg=session, lockstep=True, simulator=FakeSimulator(link), runner=runner, dataset=dataset,  # type: ignore[arg-type]
+    )
+    return EpisodeRunner(parts), dataset
+
+
+def policy_runner() -> Runner:
+    return Runner(PolicyNet(15, (8,), init_std=0.1).snapshot())
+
+
+def test_demonstration_records_every_step_and_ends_on_touchdown() -> None:
+    link = KinematicLink((0.0, 0.0, -3.0))
+    runner, dataset = make_runner(link, ScriptedHuman(set()), runner=policy_runner())
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert record.outcome == "touchdown"
+    assert record.human_samples == record.steps == len(dataset) > 20
+    assert set(dataset.counts) and dataset.counts[Source.DEMONSTRATION] == len(dataset)
+    assert link.modes[0] == "OFFBOARD"
+    # every setpoint answers the frame it was computed from
+    echoes = [e for _, e in link.sent]
+    assert all(e is not None for e in echoes) and echoes == sorted(echoes)
+
+
+def test_intervention_records_only_the_held_steps_and_counts_them() -> None:
+    link = KinematicLink((0.0, 0.0, -3.0))
+    held = {3, 4, 5, 10, 11}
+    runner, dataset = make_runner(link, ScriptedHuman(held), runner=policy_runner(), max_steps=15)
+    record = runner.run(2, Phase.INTERVENTION, seed=1)
+    assert len(dataset) == len(held) == record.human_samples
+    assert dataset.counts[Source.INTERVENTION] == len(held)
+    assert record.interventions == 2
+    assert record.intervention_durations_s == pytest.approx((3 / 10.5, 2 / 10.5), abs=1e-3)  # steps x control period
+    # the person's command went out on exactly the held steps (descent at full stick)
+    downs = [sp.down_m_s for sp, _ in link.sent[1:]]  # sent[0] is the OFFBOARD hand-over hold
+    assert [i for i, d in enumerate(downs) if d > 0.9] == sorted(held)
+
+
+def test_autonomous_never_records() -> None:
+    link = KinematicLink()
+    runner, dataset = make_runner(link, ScriptedHuman(set(range(100))), runner=policy_runner(), max_steps=10)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert len(dataset) == 0 and record.human_samples == 0 and record.outcome == "timeout"
+
+
+def test_fence_breach_holds_and_ends_the_episode() -> None:
+    link = KinematicLink((0.0, 0.0, -3.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), fence_radius_m=0.5)
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert record.outcome == "fence"
+    assert link.sent[-1][0] == VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+    assert link.modes[-1] == "AUTO.LOITER"
+
+
+def test_a_failed_learner_keeps_the_last_good_policy_flying(caplog: pytest.LogCaptureFixture) -> None:
+    link = KinematicLink()
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=Runner(policy_runner().latest_snapshot, RuntimeError("boom")), max_steps=5)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert record.steps == 5 and record.policy_version is not None
+    assert "learner failed" in caplog.text
+
+
+def test_link_loss_stops_streaming_then_resumes(monkeypatch: pytest.MonkeyPatch) -> None:
+    link = KinematicLink((0.0, 0.0, -5.0))
+    link.silent_frames = {6}
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.control.session.time.sleep", lambda s: None)
+    sent_before = []
+
+    original = runner._recover_link
+
+    def recover():  # type: ignore[no-untyped-def]
+        sent_before.append(len(link.sent))
+        link.alive = True
+        link.mode = "AUTO.LOITER"  # the vehicle's failsafe took over meanwhile
+        return original()
+
+    monkeypatch.setattr(runner, "_recover_link", recover)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert sent_before, "the loss was noticed"
+    assert link.modes.count("OFFBOARD") == 2  # handed over again after the link came back
+    assert record.steps == 12 and record.outcome == "timeout"
+
+
+def test_link_loss_raised_by_the_link_is_recovered_not_fatal(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Real links raise LinkLost from wait_frame when the vehicle falls silent (VehicleLink's contract)."""
+    link = KinematicLink((0.0, 0.0, -5.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.control.session.time.sleep", lambda s: None)
+    original = link.wait_frame
+
+    def lossy_wait_frame(after: int, timeout_s: float):  # type: ignore[no-untyped-def]
+        if link.frame == 5:
+            link.frame += 1
+            raise LinkLost("nothing heard from the vehicle")
+        return original(after, timeout_s)
+
+    link.wait_frame = lossy_wait_frame  # type: ignore[method-assign]
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert record.steps == 12 and record.outcome == "timeout"
+
+
+def test_non_finite_telemetry_holds_that_step() -> None:
+    link = KinematicLink()
+    runner, dataset = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=4)
+    original = link.wait_frame
+
+    def bad_frame(after: int, timeout_s: float):  # type: ignore[no-untyped-def]
+        snap = original(after, timeout_s)
+        return replace(snap, velocity_ned_m_s=(math.nan, 0.0, 0.0)) if link.frame == 3 else snap
+
+    link.wait_frame = bad_frame  # type: ignore[method-assign]
+    runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert VelocitySetpoint(0.0, 0.0, 0.0, 0.0) in [sp for sp, _ in link.sent[1:]]
+    assert len(dataset) == 3  # the bad step is not recorded
+
+
+def test_an_episode_that_cannot_start_is_recorded_as_an_error_and_the_next_one_flies() -> None:
+    from companion.errors import SimulatorError
+
+    link = KinematicLink((0.0, 0.0, -3.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=5)
+    sim = runner.p.simulator
+    real_reset = sim.reset  # type: ignore[union-attr]
+
+    def refuse_once(seed=None):  # type: ignore[no-untyped-def]
+        sim.reset = real_reset  # type: ignore[union-attr]
+        raise SimulatorError("simulator refused 'reset': busy")
+
+    sim.reset = refuse_once  # type: ignore[union-attr]
+    failed = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert failed.outcome == "error" and failed.steps == 0 and "busy" in failed.notes[0]
+    assert failed.success is False
+    ok = runner.run(1, Phase.AUTONOMOUS, seed=2)
+    assert ok.outcome == "timeout" and ok.steps == 5
+
+
+def test_a_refused_offboard_after_link_recovery_ends_only_that_episode(monkeypatch: pytest.MonkeyPatch) -> None:
+    from companion.errors import CommandRejected
+
+    link = KinematicLink((0.0, 0.0, -5.0))
+    link.silent_frames = {4}
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.control.session.time.sleep", lambda s: None)
+
+    def refuse(name: str) -> None:
+        if link.modes:  # the first hand-over works, the one after the loss is refused
+            raise CommandRejected("set_mode('OFFBOARD')", "DENIED")
+        link.modes.append(name)
+        link.mode = name
+
+    def recover():  # type: ignore[no-untyped-def]
+        link.alive, link.mode = True, "AUTO.LOITER"
+        return link._snap()
+
+    link.set_mode = refuse  # type: ignore[method-assign]
+    monkeypatch.setattr(runner, "_recover_link", recover)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert record.outcome == "error" and "DENIED" in record.notes[-1]

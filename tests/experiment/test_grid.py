@@ -1,0 +1,230 @@
+"""The experiment grid: expansion, resumable results, report statistics, a real trial."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from companion.config import CompanionConfig
+from companion.errors import ConfigError, DatasetCorrupt
+from companion.experiment.grid import (
+    ExperimentConfig,
+    ExperimentSetup,
+    Trial,
+    expand,
+    load_experiment,
+)
+from companion.experiment.report import markdown, mean_se, summarise, write_report
+from companion.experiment.results import ResultsFile, TrialResult
+from companion.experiment.runner import run_grid, run_trial, trial_config
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def setup_of(**grid: object) -> ExperimentSetup:
+    return ExperimentSetup(ExperimentConfig(**grid), CompanionConfig())  # type: ignore[arg-type]
+
+
+def result(trial: Trial, fingerprint: str = "f", successes: int = 10, runs: int = 20, samples: int = 100,
+           status: str = "ok") -> TrialResult:
+    return TrialResult(trial=trial, fingerprint=fingerprint, status=status,  # type: ignore[arg-type]
+                       eval_runs=runs, eval_successes=successes, human_samples=samples)
+
+
+def test_the_paper_grid_expands_to_48_distinct_trials_longest_first() -> None:
+    setup = load_experiment(REPO / "configs" / "experiment.toml")
+    trials = expand(setup.exp)
+    assert len(trials) == 4 * 3 * 4 and len({t.key for t in trials}) == 48
+    assert {t.condition for t in trials} == {"demo", "int", "col"}
+    assert {t.participant for t in trials} == {"P1", "P2", "P3", "P4"}
+    assert [t.interactions for t in trials] == sorted((t.interactions for t in trials), reverse=True)
+    assert setup.exp.eval_runs == 100 and setup.companion.learner.mode == "budgeted"
+
+
+def test_the_quick_grid_is_small() -> None:
+    setup = load_experiment(REPO / "configs" / "experiment_quick.toml")
+    assert [t.key for t in expand(setup.exp)] == ["P1-demo-02-s0", "P1-col-02-s0"]
+    assert setup.exp.eval_runs == 3
+
+
+@pytest.mark.parametrize("table", [
+    'participants = ["P9"]', "interactions = [0, 4]", "seeds = [1, 1]", "seeds = [100]",
+    'conditions = ["eval"]', "eval_runs = 0", "typo_key = 1",
+])
+def test_bad_experiment_tables_are_config_errors(tmp_path: Path, table: str) -> None:
+    path = tmp_path / "exp.toml"
+    path.write_text(f"[experiment]\n{table}\n")
+    with pytest.raises(ConfigError):
+        load_experiment(path)
+
+
+def test_replicates_use_their_own_training_starts_and_a_budgeted_learner() -> None:
+    setup = setup_of(updates_per_step=7)
+    cfg = trial_config(setup, Trial("P2", "col", 8, 3))
+    assert cfg.learner.mode == "budgeted" and cfg.learner.updates_per_step == 7
+    assert cfg.learner.seed == cfg.session.seed == 3000
+    assert Trial("P2", "col", 8, 0).start_seed + 20 <= Trial("P2", "col", 8, 1).start_seed < 100_000
+
+
+def test_fingerprint_follows_evaluation_and_config_but_not_the_grid_extent() -> None:
+    base = setup_of().fingerprint()
+    assert setup_of(participants=("P1",), interactions=(4,)).fingerprint() == base
+    assert setup_of(eval_runs=50).fingerprint() != base
+    other = CompanionConfig().model_copy(update={"learner": CompanionConfig().learner.model_copy(update={"learning_rate": 1e-3})})
+    assert ExperimentSetup(ExperimentConfig(), other).fingerprint() != base
+    assert ExperimentSetup(ExperimentConfig(), CompanionConfig(), sitl_tables='{"world": {}}').fingerprint() != base
+
+
+def test_results_file_round_trips_skips_a_torn_last_line_and_refuses_a_bad_middle_one(tmp_path: Path) -> None:
+    f = ResultsFile(tmp_path / "results.jsonl")
+    a, b = result(Trial("P1", "demo", 4, 0)), result(Trial("P1", "col", 4, 0), successes=20)
+    f.append(a)
+    f.append(b)
+    assert f.load() == [a, b]
+    with f.path.open("a") as fh:
+        fh.write('{"trial": {"participant": "P1", "cond')  # a crash while writing
+    assert f.load() == [a, b]
+    c = result(Trial("P1", "int", 4, 0))
+    f.append(c)  # the torn line is cut first
+    assert f.load() == [a, b, c]
+    f.path.write_text(f.path.read_text().replace(json.dumps(b.to_json_dict()), "garbage"))
+    with pytest.raises(DatasetCorrupt, match="delete that line"):
+        f.load()
+
+
+def test_finished_counts_only_ok_results_with_the_same_fingerprint(tmp_path: Path) -> None:
+    f = ResultsFile(tmp_path / "results.jsonl")
+    t1, t2, t3 = Trial("P1", "demo", 4, 0), Trial("P1", "col", 4, 0), Trial("P1", "int", 4, 0)
+    f.append(result(t1, "f"))
+    f.append(result(t2, "f", status="error"))
+    f.append(result(t3, "old"))
+    assert set(f.finished("f")) == {t1.key}
+
+
+def fake_trial(setup: ExperimentSetup, trial: Trial, out_dir: Path) -> TrialResult:
+    """Runs in a worker process: leaves a mark per call; P2's int trials fail."""
+    (out_dir / "calls").mkdir(exist_ok=True)
+    with (out_dir / "calls" / trial.key).open("a") as fh:
+        fh.write("x")
+    if trial.participant == "P2" and trial.condition == "int":
+        raise RuntimeError("the SITL did not start")
+    return result(trial, setup.fingerprint(), successes=trial.interactions, samples=10 * trial.interactions)
+
+
+def calls(out_dir: Path) -> dict[str, int]:
+    return {p.name: len(p.read_text()) for p in (out_dir / "calls").iterdir()} if (out_dir / "calls").exists() else {}
+
+
+def test_grid_runs_in_worker_processes_and_resumes_without_redoing_finished_trials(tmp_path: Path) -> None:
+    setup = setup_of(participants=("P1", "P2"), conditions=("demo", "int"), interactions=(4, 8), eval_runs=20)
+    done_before = Trial("P1", "demo", 8, 0)
+    ResultsFile(tmp_path / "results.jsonl").append(result(done_before, setup.fingerprint(), successes=7))
+    first = run_grid(setup, tmp_path, workers=2, progress=False, trial_fn=fake_trial)
+    assert done_before.key not in calls(tmp_path)  # finished before the crash: not run again
+    assert len(calls(tmp_path)) == 7 and set(calls(tmp_path).values()) == {1}
+    assert len(first) == 6  # 8 trials, 2 failed
+    assert next(r for r in first if r.trial == done_before).eval_successes == 7
+    lines = (tmp_path / "results.jsonl").read_text().splitlines()
+    assert sum('"status": "error"' in line for line in lines) == 2
+    second = run_grid(setup, tmp_path, workers=2, progress=False, trial_fn=fake_trial)
+    assert {k: v for k, v in calls(tmp_path).items() if v > 1} == {"P2-int-08-s0": 2, "P2-int-04-s0": 2}
+    assert [r.trial for r in second] == [r.trial for r in first]
+    assert json.loads((tmp_path / "experiment.json").read_text())["already_done"] == 6
+
+
+def test_mean_and_standard_error() -> None:
+    assert mean_se([50.0, 70.0, 90.0]) == pytest.approx((70.0, 20.0 / math.sqrt(3)))
+    assert mean_se([42.0]) == (42.0, None)
+    with pytest.raises(ValueError):
+        mean_se([])
+
+
+def test_report_table_statistics_and_paper_numbers_on_hand_made_results(tmp_path: Path) -> None:
+    rs = []
+    for p, demo_ok, col_ok, demo_n, col_n in (("P1", 10, 18, 2000, 1200), ("P2", 14, 19, 2200, 1400), ("P3", 12, 20, 2400, 1000)):
+        rs.append(result(Trial(p, "demo", 20, 0), successes=demo_ok, samples=demo_n))
+        rs.append(result(Trial(p, "col", 20, 0), successes=col_ok, samples=col_n))
+    rs.append(result(Trial("P4", "col", 20, 0), successes=0, status="error"))  # not counted
+    cells = summarise(rs)
+    assert [(c.condition, c.n) for c in cells] == [("demo", 3), ("col", 3)]
+    demo, col = cells
+    assert demo.completion_pct == pytest.approx((60.0, 10.0 / math.sqrt(3)))  # 50, 70, 60 %
+    assert col.completion_pct == pytest.approx((95.0, 5.0 / math.sqrt(3)))  # 90, 95, 100 %
+    assert col.samples == pytest.approx((1200.0, 200.0 / math.sqrt(3)))
+    table = markdown(cells)
+    assert "| 20 | Demo | 3 | 60.00 ± 5.77 | 76.25 ± 2.72 | 2200.0 ± 115.5 | ≈ 2531 (implied) |" in table
+    assert "| 20 | CoL | 3 | 95.00 ± 2.89 | 90.25 ± 5.63 | 1200.0 ± 115.5 | 1574.5 ± 54.2 |" in table
+    assert "| 20 | +35.00 | +14.00 | 45.45 | 37.79 |" in table
+    report = write_report(rs, tmp_path)
+    assert report.read_text().count("|") > 20
+    for png in ("completion.png", "samples.png"):
+        assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.e2e
+def test_one_tiny_trial_on_the_lockstep_sitl(tmp_path: Path) -> None:
+    """1 participant, CoL over 2 interactions, final policy flown on 2 held-out starts."""
+    setup = quick_setup(participants=("P1",), conditions=("col",), interactions=(2,), eval_runs=2)
+    trial = Trial("P1", "col", 2, 0)
+    r = run_trial(setup, trial, tmp_path)
+    assert r.status == "ok" and r.eval_runs == 2 and 0 <= r.eval_successes <= 2
+    trial_dir = tmp_path / "trials" / trial.key
+    rows = (trial_dir / "train" / "human.csv").read_text().splitlines()
+    assert r.human_samples == len(rows) - 1 > 0  # every recorded sample, header aside
+    train = [json.loads(line) for line in (trial_dir / "train" / "episodes.jsonl").read_text().splitlines()]
+    assert [e["phase"] for e in train] == ["demonstration", "intervention"]
+    assert [e["seed"] for e in train] == [0, 1]
+    evals = [json.loads(line) for line in (trial_dir / "eval_episodes.jsonl").read_text().splitlines()]
+    assert [e["seed"] for e in evals] == [100_000, 100_001] and all(e["human_samples"] == 0 for e in evals)
+    assert (tmp_path / r.final_checkpoint).exists()
+    assert [p.name for p in trial_dir.iterdir() if p.name.startswith("tmp")] == []  # evaluation scratch removed
+
+
+def quick_setup(**grid: object) -> ExperimentSetup:
+    """The quick experiment file's companion and SITL settings (load-proof waits), this grid."""
+    setup = load_experiment(REPO / "configs" / "experiment_quick.toml")
+    return dataclasses.replace(setup, exp=ExperimentConfig(**grid))  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_a_trial_is_a_pure_function_of_its_config(tmp_path: Path) -> None:
+    """Two runs of one cell at the same time (competing for the cores) write the same bytes."""
+    setup = quick_setup(participants=("P3",), conditions=("col",), interactions=(2,), eval_runs=3)
+    trial = Trial("P3", "col", 2, 0)
+    with ThreadPoolExecutor(2) as pool:  # each run_trial drives its own SITL process
+        a, b = pool.map(lambda d: run_trial(setup, trial, tmp_path / d), ("a", "b"))
+    keep = ("eval_successes", "human_samples", "interventions", "train_successes", "final_checkpoint")
+    assert [getattr(a, k) for k in keep] == [getattr(b, k) for k in keep]
+    csv = "trials/P3-col-02-s0/train/human.csv"
+    assert (tmp_path / "a" / csv).read_bytes() == (tmp_path / "b" / csv).read_bytes()
+
+
+@pytest.mark.slow
+def test_col_experiment_quick_then_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from companion.cli import app
+
+    monkeypatch.chdir(REPO)
+    out = tmp_path / "quick"
+    first = CliRunner().invoke(app, ["experiment", "--quick", "--workers", "2", "--out", str(out)])
+    assert first.exit_code == 0, first.output
+    assert json.loads(first.output.strip().splitlines()[-1])["trials"] == 2
+    assert (out / "report.md").exists() and (out / "completion.png").exists()
+    lines = (out / "results.jsonl").read_text()
+    again = CliRunner().invoke(app, ["experiment", "--quick", "--out", str(out)])
+    assert again.exit_code == 0 and (out / "results.jsonl").read_text() == lines  # nothing redone
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(8 * 3600)
+def test_the_full_paper_grid(tmp_path: Path) -> None:
+    """48 trials of 100 evaluation runs: hours on 2 cores (docs/experiment.md)."""
+    setup = load_experiment(REPO / "configs" / "experiment.toml")
+    results = run_grid(setup, tmp_path, workers=2, progress=False)
+    assert len(results) == 48
+    assert "| 20 | CoL |" in write_report(results, tmp_path).read_text()

@@ -1,0 +1,76 @@
+"""Observation building: camera frames by stamp, missing and stale frames, bad telemetry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.link.base import VehicleSnapshot
+from companion.vision.observation import PAD_NOT_VISIBLE
+from companion.vision.observer import STALE_AFTER_TICKS, Observer
+from companion.vision.perception import PadDetector
+from sitl.camera import CameraRenderer
+from sitl.config import CameraConfig, WorldConfig
+from sitl.frames import Frame
+from sitl.world import World
+
+
+class StuckCamera:
+    """A source that stays connected but keeps handing out one frame."""
+
+    def __init__(self, frame: Frame) -> None:
+        self.frame = frame
+
+    def latest(self) -> Frame:
+        return self.frame
+
+    def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None:
+        return self.frame if self.frame.time_boot_ms >= time_boot_ms else None
+
+
+def snapshot(t_ms: int = 1000, velocity=(0.0, 0.0, 0.0)) -> VehicleSnapshot:  # type: ignore[no-untyped-def]
+    return VehicleSnapshot(0.0, t_ms, t_ms, 1, "PX4", True, "OFFBOARD", "IN_AIR", (0.5, -0.3, -9.0), velocity,
+                           (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, True, True)
+
+
+@pytest.fixture
+def pad_frame() -> Frame:
+    image = CameraRenderer(CameraConfig(), World(WorldConfig())).render((0.5, -0.3, -9.0), (0.0, 0.0, 0.0), 0.0)
+    return Frame(7, 1000, image)
+
+
+def test_lockstep_uses_the_frame_of_the_step_and_sees_the_pad(pad_frame: Frame) -> None:
+    obs = Observer(StuckCamera(pad_frame), PadDetector(), (320, 240)).observe(snapshot(1000), lockstep=True)
+    assert obs.pad is not None and obs.time_boot_ms == 1000
+    late = Observer(StuckCamera(pad_frame), PadDetector(), (320, 240), frame_timeout_s=0.0)
+    assert late.observe(snapshot(1095), lockstep=True).pad is None  # no frame of that step
+    assert late.frames_missing == 1
+
+
+def test_a_stream_that_stops_sending_is_no_longer_trusted(pad_frame: Frame) -> None:
+    observer = Observer(StuckCamera(pad_frame), PadDetector(), (320, 240))
+    seen = [observer.observe(snapshot(), lockstep=False).pad is not None for _ in range(STALE_AFTER_TICKS + 3)]
+    assert seen[: STALE_AFTER_TICKS] == [True] * STALE_AFTER_TICKS
+    assert not any(seen[STALE_AFTER_TICKS + 1 :])
+    assert observer.frames_stale >= 2
+    assert tuple(observer.observe(snapshot(), lockstep=False).to_vector()[-3:]) == pytest.approx(PAD_NOT_VISIBLE)
+
+
+def test_no_camera_means_pad_not_visible_and_nan_telemetry_is_refused() -> None:
+    observer = Observer(None, PadDetector(), (320, 240))
+    assert observer.observe(snapshot(), lockstep=True).pad is None
+    with pytest.raises(ValueError):
+        observer.observe(snapshot(velocity=(math.nan, 0.0, 0.0)), lockstep=True)
+
+
+def test_a_corrupt_image_counts_as_not_visible(pad_frame: Frame) -> None:
+    class Broken(StuckCamera):
+        def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame:
+            return Frame(1, time_boot_ms, np.zeros((240, 320, 3), np.uint8))
+
+    observer = Observer(Broken(pad_frame), PadDetector(), (320, 240))
+    observer.detector.detect = lambda image: (_ for _ in ()).throw(ValueError("bad image"))  # type: ignore[method-assign]
+    assert observer.observe(snapshot(), lockstep=True).pad is None
+    assert observer.detect_errors == 1
