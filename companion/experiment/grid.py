@@ -40,6 +40,8 @@ class ExperimentConfig(Section):
     eval_runs: int = Field(100, ge=1, description="held-out starts flown by every final policy")
     eval_seed: int = Field(100_000, ge=0, description="seed of the first held-out start")
     updates_per_step: int = Field(40, ge=1, description="budgeted learner: updates per control step")
+    prefix_evaluation: bool = Field(
+        True, description="Demo and Int train once to the largest count; each count's checkpoint is a prefix")
 
     @field_validator("participants")
     @classmethod
@@ -97,6 +99,61 @@ class Trial:
     def start_seed(self) -> int:
         """Seed of the trial's first training start (episode k uses start_seed + k)."""
         return START_SEEDS_PER_REPLICATE * self.seed
+
+
+PREFIX_CONDITIONS: tuple[TrainCondition, ...] = ("demo", "int")
+"""Conditions whose first N episodes are the N-episode trial: the schedule does not depend on
+the episode count (CoL's does: N/2 demonstrations, then N/2 interventions)."""
+
+
+@dataclass(frozen=True)
+class TrainingRun:
+    """One training run and the trials it answers.
+
+    Demo@N and Int@N are the first N episodes of the longest run (same starts, same seeds,
+    training tied to control steps), so one run trained to the largest count answers every
+    count: its checkpoint after episode N-1 is Demo@N's final policy. CoL keeps one run per N.
+    """
+
+    participant: str
+    condition: TrainCondition
+    seed: int
+    episodes: int
+    evaluated_at: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        if not self.evaluated_at or max(self.evaluated_at) != self.episodes or min(self.evaluated_at) < 1:
+            raise ConfigError(f"a training run is evaluated at counts in [1, episodes] including "
+                              f"its last episode, got {self.evaluated_at} for {self.episodes}")
+
+    @property
+    def trials(self) -> list[Trial]:
+        return [Trial(self.participant, self.condition, n, self.seed) for n in self.evaluated_at]
+
+    @property
+    def key(self) -> str:
+        """The key of its longest trial, whose folder holds the training run."""
+        return self.trials[-1].key
+
+
+def plan(exp: ExperimentConfig, trials: list[Trial] | None = None) -> list[TrainingRun]:
+    """The training runs that answer ``trials`` (default: the whole grid), longest first.
+
+    With ``prefix_evaluation`` the Demo and Int trials of one (participant, seed) share a run;
+    every other trial is a run of its own.
+    """
+    trials = expand(exp) if trials is None else trials
+    groups: dict[tuple[str, str, int], list[int]] = {}
+    runs = []
+    for t in trials:
+        if exp.prefix_evaluation and t.condition in PREFIX_CONDITIONS:
+            groups.setdefault((t.participant, t.condition, t.seed), []).append(t.interactions)
+        else:
+            runs.append(TrainingRun(t.participant, t.condition, t.seed, t.interactions, (t.interactions,)))
+    for (participant, condition, seed), counts in groups.items():
+        ordered = tuple(sorted(set(counts)))
+        runs.append(TrainingRun(participant, condition, seed, ordered[-1], ordered))  # type: ignore[arg-type]
+    return sorted(runs, key=lambda r: -r.episodes)
 
 
 def expand(exp: ExperimentConfig) -> list[Trial]:

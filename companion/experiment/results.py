@@ -31,6 +31,10 @@ class TrialResult:
     eval_successes: int = 0
     human_samples: int = 0
     interventions: int = 0
+    intervened_steps: int = 0
+    """Human samples recorded while intervening (intervention-phase episodes only)."""
+    missed_takeovers: int = 0
+    """Intervention-phase episodes that failed with no take-over at all."""
     train_successes: int = 0
     train_wall_s: float = 0.0
     eval_wall_s: float = 0.0

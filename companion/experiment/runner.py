@@ -17,7 +17,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -25,56 +25,93 @@ from typing import TYPE_CHECKING
 from tqdm import tqdm
 
 from companion.config import CompanionConfig
+from companion.control.arbiter import Phase
 from companion.errors import ColError
-from companion.experiment.grid import ExperimentSetup, Trial, expand
+from companion.experiment.grid import (
+    START_SEEDS_PER_REPLICATE,
+    ExperimentSetup,
+    TrainingRun,
+    Trial,
+    expand,
+    plan,
+)
 from companion.experiment.results import ResultsFile, TrialResult
 
 if TYPE_CHECKING:
     from companion.app import RunResult
+    from companion.control.session import EpisodeRecord
 
 log = logging.getLogger(__name__)
-TrialFn = Callable[[ExperimentSetup, Trial, Path], TrialResult]
+RunFn = Callable[[ExperimentSetup, TrainingRun, Path], list[TrialResult]]
 
 
-def trial_config(setup: ExperimentSetup, trial: Trial) -> CompanionConfig:
-    """The companion's config for ``trial``: budgeted learner seeded by the replicate."""
+def trial_config(setup: ExperimentSetup, trial: Trial | TrainingRun) -> CompanionConfig:
+    """The companion's config for a trial or run: budgeted learner seeded by the replicate."""
+    start_seed = START_SEEDS_PER_REPLICATE * trial.seed
     cfg = setup.companion
     learner = cfg.learner.model_copy(update={
-        "mode": "budgeted", "updates_per_step": setup.exp.updates_per_step, "seed": trial.start_seed})
-    session = cfg.session.model_copy(update={"seed": trial.start_seed})
+        "mode": "budgeted", "updates_per_step": setup.exp.updates_per_step, "seed": start_seed})
+    session = cfg.session.model_copy(update={"seed": start_seed})
     return cfg.model_copy(update={"learner": learner, "session": session})
 
 
 def run_trial(setup: ExperimentSetup, trial: Trial, out_dir: Path) -> TrialResult:
-    """Train, then evaluate the final policy; everything under ``out_dir/trials/<key>``."""
-    cfg = trial_config(setup, trial)
-    trial_dir = out_dir / "trials" / trial.key
-    shutil.rmtree(trial_dir, ignore_errors=True)  # a crashed attempt's dataset must not carry over
-    trial_dir.mkdir(parents=True)
-    t0 = time.monotonic()
-    train = _train(setup, cfg, trial, trial_dir / "train")
-    final = trial_dir / "train" / "checkpoints" / f"episode_{trial.interactions - 1:03d}.npz"
-    t1 = time.monotonic()
-    evaluation = _evaluate(setup, cfg, final, trial_dir)
+    """Train for ``trial.interactions`` episodes, then evaluate the final policy."""
+    run = TrainingRun(trial.participant, trial.condition, trial.seed, trial.interactions, (trial.interactions,))
+    return run_training(setup, run, out_dir)[0]
+
+
+def run_training(setup: ExperimentSetup, run: TrainingRun, out_dir: Path) -> list[TrialResult]:
+    """Train once, then evaluate the checkpoint of every count in ``run.evaluated_at``.
+
+    The run is in ``out_dir/trials/<run.key>/train``; each trial's evaluation records are in
+    ``out_dir/trials/<trial.key>/eval_episodes.jsonl``.
+    """
+    cfg = trial_config(setup, run)
+    run_dir = out_dir / "trials" / run.key / "train"
+    for folder in {run_dir, *(out_dir / "trials" / t.key for t in run.trials)}:
+        shutil.rmtree(folder, ignore_errors=True)  # a crashed attempt's dataset must not carry over
+    run_dir.mkdir(parents=True)
+    train = _train(setup, cfg, run, run_dir)
+    results = []
+    for trial in run.trials:
+        checkpoint = run_dir / "checkpoints" / f"episode_{trial.interactions - 1:03d}.npz"
+        trial_dir = out_dir / "trials" / trial.key
+        trial_dir.mkdir(parents=True, exist_ok=True)
+        t0 = time.monotonic()
+        evaluation = _evaluate(setup, cfg, checkpoint, trial_dir)
+        results.append(_result(setup, trial, train.records[:trial.interactions], evaluation,
+                               eval_wall_s=time.monotonic() - t0,
+                               checkpoint=str(checkpoint.relative_to(out_dir))))
+    return results
+
+
+def _result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord], evaluation: RunResult,
+            eval_wall_s: float, checkpoint: str) -> TrialResult:
+    """A trial's result from its training episodes (a prefix of the run) and its evaluation."""
+    intervening = [r for r in train if r.phase == Phase.INTERVENTION.value]
     return TrialResult(
         trial=trial, fingerprint=setup.fingerprint(), status="ok",
         eval_runs=len(evaluation.records), eval_successes=evaluation.successes,
-        human_samples=sum(r.human_samples for r in train.records),
-        interventions=sum(r.interventions for r in train.records), train_successes=train.successes,
-        train_wall_s=round(t1 - t0, 2), eval_wall_s=round(time.monotonic() - t1, 2),
-        final_checkpoint=str(final.relative_to(out_dir)),
+        human_samples=sum(r.human_samples for r in train),
+        interventions=sum(r.interventions for r in train),
+        intervened_steps=sum(r.human_samples for r in intervening),
+        missed_takeovers=sum(1 for r in intervening if r.interventions == 0 and not r.success),
+        train_successes=sum(1 for r in train if r.success),
+        train_wall_s=round(sum(r.wall_time_s for r in train), 2), eval_wall_s=round(eval_wall_s, 2),
+        final_checkpoint=checkpoint,
     )
 
 
-def _train(setup: ExperimentSetup, cfg: CompanionConfig, trial: Trial, run_dir: Path) -> RunResult:
+def _train(setup: ExperimentSetup, cfg: CompanionConfig, run: TrainingRun, run_dir: Path) -> RunResult:
     """The participant flies the condition's schedule from a fresh random policy."""
     from companion.app import RunOptions, run_episodes
 
     train = run_episodes(cfg, RunOptions(
-        pilot=f"synthetic:{trial.participant}", condition=trial.condition, episodes=trial.interactions,
-        run_dir=run_dir, config_path=setup.config_path, seed=trial.start_seed, lockstep=True))
+        pilot=f"synthetic:{run.participant}", condition=run.condition, episodes=run.episodes,
+        run_dir=run_dir, config_path=setup.config_path, seed=cfg.session.seed, lockstep=True))
     if train.learner_error is not None:
-        raise ColError(f"the learner failed in trial {trial.key}: {train.learner_error}; "
+        raise ColError(f"the learner failed in run {run.key}: {train.learner_error}; "
                        f"its run is in {run_dir}; run the grid again to retry the trial")
     return train
 
@@ -92,14 +129,15 @@ def _evaluate(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, tr
     return evaluation
 
 
-def run_trial_safely(setup: ExperimentSetup, trial: Trial, out_dir: Path,
-                     trial_fn: TrialFn = run_trial) -> TrialResult:
-    """A failed trial becomes an ``error`` result (run again on resume), not a dead grid."""
+def run_training_safely(setup: ExperimentSetup, run: TrainingRun, out_dir: Path,
+                        run_fn: RunFn = run_training) -> list[TrialResult]:
+    """A failed run gives ``error`` results for its trials (run again on resume), not a dead grid."""
     try:
-        return trial_fn(setup, trial, out_dir)
-    except Exception as exc:  # any failure of one trial is reported, the grid goes on
-        log.warning("trial %s failed: %r", trial.key, exc)
-        return TrialResult(trial=trial, fingerprint=setup.fingerprint(), status="error", error=repr(exc))
+        return run_fn(setup, run, out_dir)
+    except Exception as exc:  # any failure of one run is reported, the grid goes on
+        log.warning("training run %s failed: %r", run.key, exc)
+        return [TrialResult(trial=t, fingerprint=setup.fingerprint(), status="error", error=repr(exc))
+                for t in run.trials]
 
 
 def _init_worker() -> None:
@@ -111,7 +149,7 @@ def _init_worker() -> None:
 
 
 def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool = True,
-             trial_fn: TrialFn = run_trial) -> list[TrialResult]:
+             run_fn: RunFn = run_training) -> list[TrialResult]:
     """Run every trial of the grid not yet in ``out_dir/results.jsonl``; all results, grid order."""
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -125,26 +163,27 @@ def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool
     bar = tqdm(total=len(trials), initial=len(trials) - len(todo), unit="trial", desc="experiment",
                disable=not progress)
     try:
-        for result in _run_pool(setup, todo, out_dir, workers, trial_fn):
-            results.append(result)
-            if result.status == "ok":
-                done[result.trial.key] = result
-            bar.update(1)
-            bar.set_postfix_str(f"{result.trial.key} {result.status} {result.completion_pct:.0f}%")
+        for batch in _run_pool(setup, plan(setup.exp, todo), out_dir, workers, run_fn):
+            for result in batch:
+                results.append(result)
+                if result.status == "ok":
+                    done[result.trial.key] = result
+                bar.update(1)
+                bar.set_postfix_str(f"{result.trial.key} {result.status} {result.completion_pct:.0f}%")
     finally:
         bar.close()
     return [done[t.key] for t in trials if t.key in done]
 
 
-def _run_pool(setup: ExperimentSetup, todo: list[Trial], out_dir: Path, workers: int,
-              trial_fn: TrialFn) -> Iterable[TrialResult]:
-    """Results as trials finish, from a pool of fresh (spawned) worker processes."""
-    if not todo:
+def _run_pool(setup: ExperimentSetup, runs: list[TrainingRun], out_dir: Path, workers: int,
+              run_fn: RunFn) -> Iterable[list[TrialResult]]:
+    """Each run's results as it finishes, from a pool of fresh (spawned) worker processes."""
+    if not runs:
         return
     context = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
     try:
-        futures = [pool.submit(run_trial_safely, setup, t, out_dir, trial_fn) for t in todo]
+        futures = [pool.submit(run_training_safely, setup, r, out_dir, run_fn) for r in runs]
         for future in as_completed(futures):
             yield future.result()
     finally:

@@ -8,6 +8,7 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -16,13 +17,16 @@ from companion.errors import ConfigError, DatasetCorrupt
 from companion.experiment.grid import (
     ExperimentConfig,
     ExperimentSetup,
+    TrainingRun,
     Trial,
     expand,
     load_experiment,
+    plan,
 )
 from companion.experiment.report import markdown, mean_se, summarise, write_report
 from companion.experiment.results import ResultsFile, TrialResult
-from companion.experiment.runner import run_grid, run_trial, trial_config
+from companion.experiment.runner import run_grid, run_training, run_trial, trial_config
+from companion.learning.checkpoint import load_checkpoint
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -107,14 +111,16 @@ def test_finished_counts_only_ok_results_with_the_same_fingerprint(tmp_path: Pat
     assert set(f.finished("f")) == {t1.key}
 
 
-def fake_trial(setup: ExperimentSetup, trial: Trial, out_dir: Path) -> TrialResult:
-    """Runs in a worker process: leaves a mark per call; P2's int trials fail."""
+def fake_run(setup: ExperimentSetup, run: TrainingRun, out_dir: Path) -> list[TrialResult]:
+    """Runs in a worker process: leaves a mark per trial it answers; P2's int runs fail."""
     (out_dir / "calls").mkdir(exist_ok=True)
-    with (out_dir / "calls" / trial.key).open("a") as fh:
-        fh.write("x")
-    if trial.participant == "P2" and trial.condition == "int":
+    for trial in run.trials:
+        with (out_dir / "calls" / trial.key).open("a") as fh:
+            fh.write("x")
+    if run.participant == "P2" and run.condition == "int":
         raise RuntimeError("the SITL did not start")
-    return result(trial, setup.fingerprint(), successes=trial.interactions, samples=10 * trial.interactions)
+    return [result(t, setup.fingerprint(), successes=t.interactions, samples=10 * t.interactions)
+            for t in run.trials]
 
 
 def calls(out_dir: Path) -> dict[str, int]:
@@ -125,17 +131,42 @@ def test_grid_runs_in_worker_processes_and_resumes_without_redoing_finished_tria
     setup = setup_of(participants=("P1", "P2"), conditions=("demo", "int"), interactions=(4, 8), eval_runs=20)
     done_before = Trial("P1", "demo", 8, 0)
     ResultsFile(tmp_path / "results.jsonl").append(result(done_before, setup.fingerprint(), successes=7))
-    first = run_grid(setup, tmp_path, workers=2, progress=False, trial_fn=fake_trial)
+    first = run_grid(setup, tmp_path, workers=2, progress=False, run_fn=fake_run)
     assert done_before.key not in calls(tmp_path)  # finished before the crash: not run again
     assert len(calls(tmp_path)) == 7 and set(calls(tmp_path).values()) == {1}
     assert len(first) == 6  # 8 trials, 2 failed
     assert next(r for r in first if r.trial == done_before).eval_successes == 7
     lines = (tmp_path / "results.jsonl").read_text().splitlines()
     assert sum('"status": "error"' in line for line in lines) == 2
-    second = run_grid(setup, tmp_path, workers=2, progress=False, trial_fn=fake_trial)
+    second = run_grid(setup, tmp_path, workers=2, progress=False, run_fn=fake_run)
     assert {k: v for k, v in calls(tmp_path).items() if v > 1} == {"P2-int-08-s0": 2, "P2-int-04-s0": 2}
     assert [r.trial for r in second] == [r.trial for r in first]
     assert json.loads((tmp_path / "experiment.json").read_text())["already_done"] == 6
+
+
+def test_demo_and_int_train_once_to_the_largest_count_col_once_per_count() -> None:
+    exp = ExperimentConfig(participants=("P1", "P2"), interactions=(4, 8, 12, 20), seeds=(0, 1))
+    runs = plan(exp)
+    assert sorted(t.key for r in runs for t in r.trials) == sorted(t.key for t in expand(exp))
+    prefix = [r for r in runs if r.condition != "col"]
+    assert len(prefix) == 2 * 2 * 2 and {r.evaluated_at for r in prefix} == {(4, 8, 12, 20)}
+    assert {r.episodes for r in prefix} == {20}
+    col = [r for r in runs if r.condition == "col"]
+    assert sorted(r.evaluated_at for r in col) == sorted([(n,) for n in (4, 8, 12, 20)] * 4)
+    # per (participant, replicate): 20 + 20 + (4 + 8 + 12 + 20) = 84 training episodes, not 132
+    assert sum(r.episodes for r in runs) == 84 * 4
+    assert [r.episodes for r in runs] == sorted((r.episodes for r in runs), reverse=True)
+    assert runs[0].key == runs[0].trials[-1].key
+
+
+def test_a_resumed_plan_trains_only_as_far_as_the_missing_counts() -> None:
+    exp = ExperimentConfig(participants=("P1",), conditions=("demo",), interactions=(4, 8, 20))
+    missing = [Trial("P1", "demo", 4, 0), Trial("P1", "demo", 8, 0)]
+    assert plan(exp, missing) == [TrainingRun("P1", "demo", 0, 8, (4, 8))]
+    whole = ExperimentConfig(participants=("P1",), conditions=("demo",), interactions=(4, 8), prefix_evaluation=False)
+    assert sorted(r.episodes for r in plan(whole)) == [4, 8]
+    with pytest.raises(ConfigError):
+        TrainingRun("P1", "demo", 0, 8, (4,))  # the last count must be the run's own length
 
 
 def test_mean_and_standard_error() -> None:
@@ -184,6 +215,31 @@ def test_one_tiny_trial_on_the_lockstep_sitl(tmp_path: Path) -> None:
     assert [e["seed"] for e in evals] == [100_000, 100_001] and all(e["human_samples"] == 0 for e in evals)
     assert (tmp_path / r.final_checkpoint).exists()
     assert [p.name for p in trial_dir.iterdir() if p.name.startswith("tmp")] == []  # evaluation scratch removed
+
+
+def _evaluation(path: Path) -> list[dict[str, object]]:
+    """Evaluation records without their wall times (the only field that may differ)."""
+    return [{k: v for k, v in json.loads(line).items() if k != "wall_time_s"}
+            for line in path.read_text().splitlines()]
+
+
+@pytest.mark.e2e
+def test_a_prefix_checkpoint_evaluates_like_a_trial_trained_to_that_count_alone(tmp_path: Path) -> None:
+    """Int@1 read from a 2-episode run is the same policy, flying the same evaluation, as Int@1
+    trained alone: same weights, same human samples, the same evaluation records."""
+    setup = quick_setup(participants=("P2",), conditions=("int",), interactions=(1, 2), eval_runs=2)
+    (run,) = plan(setup.exp)
+    assert run.evaluated_at == (1, 2)
+    prefix_1, _ = run_training(setup, run, tmp_path / "prefix")
+    alone = run_trial(setup, Trial("P2", "int", 1, 0), tmp_path / "alone")
+    keep = ("eval_runs", "eval_successes", "human_samples", "interventions", "intervened_steps")
+    assert [getattr(prefix_1, k) for k in keep] == [getattr(alone, k) for k in keep]
+    a, _ = load_checkpoint(tmp_path / "prefix" / prefix_1.final_checkpoint)
+    b, _ = load_checkpoint(tmp_path / "alone" / alone.final_checkpoint)
+    assert a.version == b.version and all(np.array_equal(x, y) for x, y in zip(a.weights, b.weights))
+    key = "trials/P2-int-01-s0/eval_episodes.jsonl"
+    assert _evaluation(tmp_path / "prefix" / key) == _evaluation(tmp_path / "alone" / key)
+    assert prefix_1.final_checkpoint == "trials/P2-int-02-s0/train/checkpoints/episode_000.npz"
 
 
 def quick_setup(**grid: object) -> ExperimentSetup:
