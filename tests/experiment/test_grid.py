@@ -51,6 +51,13 @@ def test_the_paper_grid_expands_to_48_distinct_trials_longest_first() -> None:
     assert setup.exp.eval_runs == 100 and setup.companion.learner.mode == "budgeted"
 
 
+def test_the_paper_size_grid_has_four_replicates_and_84_training_episodes_per_unit() -> None:
+    setup = load_experiment(REPO / "configs" / "paper.toml")
+    assert len(expand(setup.exp)) == 4 * 3 * 4 * 4 and setup.exp.seeds == (0, 1, 2, 3)
+    assert sum(r.episodes for r in plan(setup.exp)) == 84 * 4 * 4
+    assert setup.exp.eval_runs == 100 and setup.companion.perception.frame_timeout_s == 2.0
+
+
 def test_the_quick_grid_is_small() -> None:
     setup = load_experiment(REPO / "configs" / "experiment_quick.toml")
     assert [t.key for t in expand(setup.exp)] == ["P1-demo-02-s0", "P1-col-02-s0"]
