@@ -8,8 +8,10 @@ Used by the ``col`` commands and the experiment harness. A run folder holds ``hu
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
+import math
 import socket
 import time
 from collections.abc import Callable, Iterator
@@ -26,6 +28,7 @@ from companion.errors import ColError, ConfigError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
 from companion.learning.dataset import HumanDataset
+from companion.learning.fit import Fit, fit_of
 from companion.learning.learner import Learner
 from companion.learning.policy import PolicySnapshot
 from companion.learning.runners import make_runner
@@ -257,6 +260,9 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                 i = first + k
                 record = episode_runner.run(i, phase, seed0 + k)
                 dataset.sync()
+                if runner is not None:
+                    runner.between_episodes()
+                    record = _with_fit(record, fit_of(learner.latest_snapshot, dataset.view()))
                 if opts.record:  # checkpoint first: a record line always has its checkpoint (eval: none)
                     save_checkpoint(run_dir / "checkpoints" / f"episode_{i:03d}.npz", learner.latest_snapshot,
                                     cfg.learner, dataset_size=len(dataset), episode=i, condition=opts.condition,
@@ -274,6 +280,15 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     return result
+
+
+def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:
+    """The episode's record with the policy's fit after it (None for no samples: JSON has no NaN)."""
+    def finite(x: float) -> float | None:
+        return round(x, 6) if math.isfinite(x) else None
+
+    return dataclasses.replace(record, loss_all=finite(fit.loss_all),
+                               loss_intervention=finite(fit.loss_intervention))
 
 
 def _resume_policy(run_dir: Path, first: int) -> PolicySnapshot | None:

@@ -116,6 +116,11 @@ class LearnerConfig(Section):
         "process (needs a dataset file); budgeted: reproducible",
     )
     updates_per_step: int = Field(50, ge=1, description="budgeted mode: updates per control step")
+    between_episode_updates: int = Field(
+        40_000, ge=0,
+        description="budgeted mode: updates after each episode, before its checkpoint, as a live "
+        "learner trains while the vehicle is repositioned (the paper's round cap still applies)",
+    )
     publish_every_updates: int = Field(
         8, ge=1, description="publish a snapshot at least this often (and after any new data)"
     )

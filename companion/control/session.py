@@ -68,6 +68,10 @@ class EpisodeRecord:
     sim_time_s: float
     wall_time_s: float
     notes: tuple[str, ...] = field(default_factory=tuple)
+    loss_all: float | None = None
+    """After the episode (and the learner's between-episode updates): the policy's MSE on
+    every human sample, and on the intervention samples alone (None: none recorded)."""
+    loss_intervention: float | None = None
 
     def to_json_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -75,6 +75,8 @@ class DatasetView:
 
     obs: np.ndarray
     actions: np.ndarray
+    intervention: np.ndarray | None = None
+    """Per row: recorded while the person intervened (None where the source is not kept)."""
 
     def __len__(self) -> int:
         return int(self.obs.shape[0])
@@ -211,15 +213,16 @@ class _Rows:
         self.chunk_rows = chunk_rows
         self.obs = np.empty((chunk_rows, obs_dim), np.float32)
         self.actions = np.empty((chunk_rows, ACT_DIM), np.float32)
+        self.intervention = np.zeros(chunk_rows, bool)
 
     def ensure(self, n_rows: int) -> None:
         """Make room; growing copies into *new* arrays, so existing views stay valid."""
         if n_rows <= self.obs.shape[0]:
             return
         capacity = max(n_rows, 2 * self.obs.shape[0]) + self.chunk_rows
-        for name in ("obs", "actions"):
+        for name in ("obs", "actions", "intervention"):
             old = getattr(self, name)
-            new = np.empty((capacity, old.shape[1]), np.float32)
+            new = np.zeros((capacity, *old.shape[1:]), old.dtype)
             new[: old.shape[0]] = old
             setattr(self, name, new)
 
@@ -265,6 +268,7 @@ class HumanDataset:
         self._rows.ensure(n)
         self._rows.obs[:n] = loaded.obs
         self._rows.actions[:n] = loaded.actions
+        self._rows.intervention[:n] = [s is Source.INTERVENTION for s in loaded.source]
         for s in loaded.source:
             self.counts[s] += 1
         self.last_episode = int(loaded.episode.max()) if n else -1
@@ -310,6 +314,7 @@ class HumanDataset:
             for i, s in enumerate(batch, start=n):
                 self._rows.obs[i] = s.obs
                 self._rows.actions[i] = s.action
+                self._rows.intervention[i] = s.source is Source.INTERVENTION
                 self.counts[s.source] += 1
                 self.last_episode = max(self.last_episode, s.episode)
             self._publish(n + len(batch))
@@ -317,10 +322,10 @@ class HumanDataset:
             return n + len(batch)
 
     def _publish(self, n: int) -> None:
-        obs, actions = self._rows.obs[:n], self._rows.actions[:n]
-        obs.flags.writeable = False
-        actions.flags.writeable = False
-        self._published = DatasetView(obs, actions)  # one assignment: readers see old or new
+        obs, actions, intervention = self._rows.obs[:n], self._rows.actions[:n], self._rows.intervention[:n]
+        for array in (obs, actions, intervention):
+            array.flags.writeable = False
+        self._published = DatasetView(obs, actions, intervention)  # one assignment: readers see old or new
 
     # -- reading ------------------------------------------------------------------------
     def __len__(self) -> int:

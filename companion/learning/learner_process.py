@@ -398,6 +398,10 @@ class LearnerProcess:
         self._poll()
         return self._latest
 
+    def between_episodes(self) -> int:
+        """Nothing to do: the child goes on training while the vehicle is repositioned."""
+        return 0
+
     def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot:
         """The snapshot to fly now; never waits (``tick_start_s`` is not needed: no GIL to share)."""
         return self.latest_snapshot

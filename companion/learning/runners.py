@@ -44,6 +44,18 @@ class BudgetedLearner:
             self.learner.train_until_converged(budget=self.updates_per_step)
         return self.learner.latest_snapshot
 
+    def between_episodes(self) -> int:
+        """Train while the vehicle is repositioned: ``between_episode_updates`` at most (the
+        round still ends at convergence or ``max_updates``); the number of updates run.
+
+        Without it the last episode's samples get only the updates of its final control steps
+        before the checkpoint is written.
+        """
+        budget = self.learner.config.between_episode_updates
+        if budget == 0 or not self.learner.has_work:
+            return 0
+        return self.learner.train_until_converged(budget=budget).updates
+
     @property
     def latest_snapshot(self) -> PolicySnapshot:
         return self.learner.latest_snapshot
@@ -133,6 +145,10 @@ class LearnerThread:
         self._stop = threading.Event()
         self._saved_switch_interval_s: float | None = None
         self._thread = threading.Thread(target=self._run, name="col-learner", daemon=True)
+
+    def between_episodes(self) -> int:
+        """Nothing to do: the thread goes on training while the vehicle is repositioned."""
+        return 0
 
     @property
     def state(self) -> LearnerState:

@@ -218,6 +218,7 @@ def test_one_tiny_trial_on_the_lockstep_sitl(tmp_path: Path) -> None:
     train = [json.loads(line) for line in (trial_dir / "train" / "episodes.jsonl").read_text().splitlines()]
     assert [e["phase"] for e in train] == ["demonstration", "intervention"]
     assert [e["seed"] for e in train] == [0, 1]
+    assert all(e["loss_all"] is not None for e in train)  # the fit is logged after every episode
     evals = [json.loads(line) for line in (trial_dir / "eval_episodes.jsonl").read_text().splitlines()]
     assert [e["seed"] for e in evals] == [100_000, 100_001] and all(e["human_samples"] == 0 for e in evals)
     assert (tmp_path / r.final_checkpoint).exists()

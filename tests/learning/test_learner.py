@@ -104,6 +104,20 @@ def test_budgeted_learner_runs_exactly_its_budget(rng: np.random.Generator) -> N
     assert isinstance(make_runner(Learner(LearnerConfig(), ds)), LearnerThread)
 
 
+def test_between_episodes_the_budgeted_learner_finishes_the_round_within_its_budget(
+        rng: np.random.Generator) -> None:
+    ds = _dataset(rng, 100)
+    cfg = LearnerConfig(loss_threshold=1e-12, max_updates=50, between_episode_updates=30)
+    runner = BudgetedLearner(Learner(cfg, ds), updates_per_step=7)
+    runner.on_control_step()
+    assert runner.between_episodes() == 30  # the budget binds
+    assert runner.between_episodes() == 13  # then the round's cap: 7 + 30 + 13 = 50
+    assert runner.between_episodes() == 0 and runner.latest_snapshot.version == 50
+    off = BudgetedLearner(Learner(cfg.model_copy(update={"between_episode_updates": 0}), ds))
+    assert off.between_episodes() == 0 and off.latest_snapshot.version == 0
+    assert LearnerThread(Learner(cfg, ds)).between_episodes() == 0  # it trains on its own
+
+
 def test_budgeted_runs_repeat_exactly_whatever_the_timing() -> None:
     """Same seed and same samples per control step -> identical policies, fast or slow."""
 
