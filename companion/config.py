@@ -169,6 +169,15 @@ class PilotConfig(Section):
         0.8, gt=0, le=1, description="pad this far towards the image edge (0 centre, 1 edge)"
     )
     takeover_descent_m_s: float = Field(1.5, gt=0, description="descending faster than this")
+    takeover_low_descent_m_s: float = Field(
+        0.7, gt=0, description="descending faster than this below takeover_low_height_m (a hard landing)"
+    )
+    takeover_predicted_miss_m: float = Field(
+        0.45, ge=0, description="touchdown projected this far from the pad's centre -> take over; 0 disables"
+    )
+    anticipation_s: float = Field(
+        3.0, ge=0, description="a touchdown expected within this long is projected from the current velocity"
+    )
     takeover_low_height_m: float = Field(2.0, ge=0, description="'low' for the off-centre test")
     takeover_off_centre_m: float = Field(0.6, gt=0, description="off-centre when low")
     takeover_touchdown_speed_m_s: float = Field(

@@ -131,6 +131,11 @@ class ScriptedExpert(HumanInput):
         self._last_command = JoystickCommand(roll, pitch, 0.0, -self._descent(view))
         return self._last_command
 
+    def reset_trim(self) -> None:
+        """Forget the trim: at a take-over the pilot's hands start from what they see now, not
+        from a drift they integrated while only watching the policy."""
+        self._trim = np.zeros(2)
+
     def _update_trim(self, view: PadEstimate, now_ms: int) -> None:
         last = self._last_seen_ms
         dt_s = 0.0 if last is None else min(max(0.0, (now_ms - last) / 1e3), 1.0)
@@ -202,13 +207,31 @@ class RuleState:
     """Why the expert is (still) holding, or None when the agent flies."""
 
 
+def projected_miss_m(view: PadEstimate, velocity_fr_m_s: np.ndarray, descent_m_s: float,
+                     horizon_s: float) -> float | None:
+    """Where a watching person expects the touchdown: the pad's offset after the vehicle keeps
+    its ground velocity until it reaches the pad's height (None: no touchdown within
+    ``horizon_s``, e.g. hovering or high up: nothing to predict yet).
+
+    People anticipate a miss from the motion they see; waiting for the pad to reach the image
+    edge (the other take-over triggers) acts only a metre above the pad.
+    """
+    if descent_m_s <= 0.05 or view.height_m > descent_m_s * horizon_s:
+        return None
+    t_s = view.height_m / descent_m_s
+    return math.hypot(view.forward_m - float(velocity_fr_m_s[0]) * t_s,
+                      view.right_m - float(velocity_fr_m_s[1]) * t_s)
+
+
 class InterventionRule:
     """When a watching expert takes over, and when they let go.
 
-    Take over at once when: the vehicle descends faster than ``takeover_descent_m_s``; the
-    pad has been lost for ``lost_hold_s``; the pad drifts towards the image edge
-    (``takeover_edge_fraction``); it is off-centre by more than ``takeover_off_centre_m``
-    below ``takeover_low_height_m``; or the descent stalls (less than
+    Take over at once when: the vehicle descends faster than ``takeover_descent_m_s`` (or
+    than ``takeover_low_descent_m_s`` below ``takeover_low_height_m``); the pad has been lost
+    for ``lost_hold_s``; the pad drifts towards the image edge (``takeover_edge_fraction``);
+    it is off-centre by more than ``takeover_off_centre_m`` below ``takeover_low_height_m``;
+    the touchdown expected within ``anticipation_s`` is projected (:func:`projected_miss_m`)
+    more than ``takeover_predicted_miss_m`` from the pad's centre; or the descent stalls (less than
     ``takeover_stall_descent_m`` in ``takeover_stall_s``: a watching person loses patience).
     Once committed to touchdown (:class:`TouchdownCommit`) a partial or missing pad is
     expected, and sliding (``takeover_touchdown_speed_m_s``) or drifting off the remembered
@@ -264,6 +287,8 @@ class InterventionRule:
         vn, ve, vd = (float(v) for v in obs.velocity_ned_m_s)
         if vd > c.takeover_descent_m_s:
             return "descending too fast"
+        if view is not None and view.height_m < c.takeover_low_height_m and vd > c.takeover_low_descent_m_s:
+            return "descending too fast near the ground"
         if view is None and self._commit.committed:
             if math.hypot(vn, ve) > c.takeover_touchdown_speed_m_s:
                 return "sliding sideways at touchdown"
@@ -278,6 +303,10 @@ class InterventionRule:
             return "pad near the image edge"
         if view.height_m < c.takeover_low_height_m and view.offset_m > c.takeover_off_centre_m:
             return "off-centre at low height"
+        miss_m = projected_miss_m(view, heading_velocity(obs.velocity_ned_m_s, float(obs.attitude_rad[2])),
+                                  vd, c.anticipation_s)
+        if c.takeover_predicted_miss_m > 0 and miss_m is not None and miss_m > c.takeover_predicted_miss_m:
+            return "heading for a miss"
         return None
 
     def _on_track(self, obs: Observation, view: PadEstimate | None) -> bool:
@@ -309,6 +338,9 @@ class InterveningExpert(HumanInput):
         self.last_state = RuleState(False, None)
 
     def read(self, obs: Observation) -> HumanCommand:
-        cmd = self.expert.command(obs)  # every tick, so the expert's memory stays current
+        was_holding = self.last_state.holding
         self.last_state = self.rule.update(obs)
+        if self.last_state.holding and not was_holding:
+            self.expert.reset_trim()  # a take-over label depends on what is seen now only
+        cmd = self.expert.command(obs)  # every tick, so the expert's memory stays current
         return HumanCommand(cmd, override_held=self.last_state.holding)

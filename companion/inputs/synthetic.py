@@ -14,6 +14,11 @@ whose rule decides interventions):
 - **patience**: the intervention rule's take-over thresholds are scaled by ``patience``
   (> 1 waits longer before taking over, < 1 takes over sooner).
 
+And a strategy, as people differ in more than noise: how far ahead they see a miss coming
+(``anticipation_s``, ``miss_margin_m``), how hard they correct (``correction_gain``) and how
+they approach (``descent_scale``). Labels depend only on what the pilot sees (and its delay):
+the expert's trim starts from zero at every take-over.
+
 Randomness comes from a generator seeded by (profile seed, trial seed, episode), so a trial
 is reproducible and the episodes of a trial differ.
 """
@@ -52,6 +57,14 @@ class PilotProfile:
     attention_lapse_prob: float
     patience: float
     description: str = ""
+    anticipation_s: float = 3.0
+    """How far ahead the person projects the touchdown (0: waits for visible trouble)."""
+    miss_margin_m: float = 0.45
+    """Projected touchdown this far from the pad's centre: take over."""
+    correction_gain: float = 1.0
+    """How hard they steer: scales the expert's offset gain and speed damping."""
+    descent_scale: float = 1.0
+    """How they approach: scales the expert's fast descent (< 1 cautious, > 1 brisk)."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.isidentifier():
@@ -72,17 +85,33 @@ class PilotProfile:
         lo, hi = PATIENCE_RANGE
         if not lo <= self.patience <= hi:
             raise ConfigError(f"profile {self.name}: patience must be in [{lo}, {hi}], got {self.patience!r}")
+        self._check_strategy()
+
+    def _check_strategy(self) -> None:
+        ranges = {"anticipation_s": (0.0, 10.0), "miss_margin_m": (0.05, 3.0),
+                  "correction_gain": (0.25, 3.0), "descent_scale": (0.25, 1.25)}
+        for name, (lo, hi) in ranges.items():
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and lo <= value <= hi):
+                raise ConfigError(f"profile {self.name}: {name} must be in [{lo}, {hi}], got {value!r}")
 
     def episode_rng(self, trial_seed: int, episode: int) -> np.random.Generator:
         """The pilot's randomness for one episode of one trial."""
         return np.random.default_rng([self.seed, trial_seed, episode])
 
-    def rule_config(self, base: PilotConfig) -> PilotConfig:
-        """``base`` with the take-over thresholds scaled by patience (release ones kept below)."""
+    def pilot_config(self, base: PilotConfig) -> PilotConfig:
+        """``base`` flown with this person's strategy (anticipation, correction, approach) and
+        take-over thresholds scaled by patience (release ones kept below)."""
         p = self.patience
         edge = min(base.takeover_edge_fraction * p, EDGE_FRACTION_MAX)
         off_centre = base.takeover_off_centre_m * p
         return base.model_copy(update={
+            "anticipation_s": self.anticipation_s,
+            "takeover_predicted_miss_m": self.miss_margin_m,
+            "xy_gain_per_m": base.xy_gain_per_m * self.correction_gain,
+            "xy_damping_per_m_s": base.xy_damping_per_m_s * self.correction_gain,
+            "descent_stick_fast": min(1.0, base.descent_stick_fast * self.descent_scale),
+            "takeover_low_descent_m_s": base.takeover_low_descent_m_s * p,
             "takeover_edge_fraction": edge,
             "takeover_off_centre_m": off_centre,
             "takeover_descent_m_s": base.takeover_descent_m_s * p,
@@ -97,13 +126,21 @@ PROFILES: dict[str, PilotProfile] = {
     p.name: p
     for p in (
         PilotProfile("P1", 101, 1, (0.02, 0.02, 0.01, 0.02), 0.02, 1.0,
-                     "experienced: 95 ms reaction, steady hands, rarely looks away"),
+                     "experienced: 95 ms reaction, steady hands, rarely looks away; sees a miss "
+                     "coming 3 s ahead, firm corrections, even approach",
+                     anticipation_s=3.0, miss_margin_m=0.4, correction_gain=1.0, descent_scale=1.0),
         PilotProfile("P2", 202, 2, (0.05, 0.05, 0.02, 0.04), 0.05, 1.2,
-                     "skilled: 190 ms reaction, a little patient before taking over"),
+                     "skilled: 190 ms reaction, a little patient; lets the agent try (2 s ahead, "
+                     "wider margin), gentle corrections, brisk approach",
+                     anticipation_s=2.0, miss_margin_m=0.55, correction_gain=0.8, descent_scale=1.1),
         PilotProfile("P3", 303, 3, (0.08, 0.08, 0.03, 0.06), 0.10, 0.8,
-                     "average: 286 ms reaction, eager to take over"),
+                     "average: 286 ms reaction, eager: takes over early (4 s ahead, tight margin) "
+                     "and over-corrects, cautious approach",
+                     anticipation_s=4.0, miss_margin_m=0.3, correction_gain=1.3, descent_scale=0.8),
         PilotProfile("P4", 404, 4, (0.12, 0.12, 0.05, 0.10), 0.15, 1.5,
-                     "novice: 381 ms reaction, shaky, often distracted, late to take over"),
+                     "novice: 381 ms reaction, shaky, often distracted; notices a miss late "
+                     "(1 s ahead, wide margin), weak corrections, hurried approach",
+                     anticipation_s=1.0, miss_margin_m=0.7, correction_gain=0.7, descent_scale=1.2),
     )
 }
 """The four named participants, from most to least skilled."""
@@ -163,4 +200,4 @@ class SyntheticPilot(HumanInput):
 
 def synthetic_pilot(profile: PilotProfile, cfg: PilotConfig, trial_seed: int = 0) -> SyntheticPilot:
     """The participant ``profile`` flying the scripted expert under its patience-scaled rule."""
-    return SyntheticPilot(profile, InterveningExpert(profile.rule_config(cfg)), trial_seed)
+    return SyntheticPilot(profile, InterveningExpert(profile.pilot_config(cfg)), trial_seed)

@@ -13,7 +13,12 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import CommandsConfig, PilotConfig
 from companion.control.arbiter import Arbiter, Phase
 from companion.errors import InputDeviceError
-from companion.inputs.expert import InterveningExpert, InterventionRule, ScriptedExpert
+from companion.inputs.expert import (
+    InterveningExpert,
+    InterventionRule,
+    ScriptedExpert,
+    projected_miss_m,
+)
 from companion.inputs.gamepad import GamepadInput, check_layout, read_device
 from companion.inputs.manual_control import ManualControlInput, button_held
 from companion.inputs.pad_view import estimate_pad, focal_length_px, heading_velocity
@@ -326,6 +331,45 @@ def test_rule_takes_over_in_danger(observation: Observation, reason: str) -> Non
     state = rule.update(observation)
     assert state.holding and state.reason is not None and reason in state.reason
     assert rule.takeovers == 1
+
+
+def test_projected_miss_from_offset_velocity_and_descent() -> None:
+    view = estimate_pad(pad_at(1.0, 0.0, 2.0), (W_PX, H_PX), (0.0, 0.0, 0.0), PAD_RADIUS_M, math.radians(90))
+    # 2 m above, descending 1 m/s: touchdown in 2 s; moving forward 0.5 m/s closes the 1 m
+    assert projected_miss_m(view, np.array([0.5, 0.0]), 1.0, 3.0) == pytest.approx(0.0, abs=1e-3)
+    assert projected_miss_m(view, np.array([0.0, 0.3]), 1.0, 3.0) == pytest.approx(math.hypot(1.0, 0.6), abs=1e-3)
+    assert projected_miss_m(view, np.array([0.0, 0.0]), 0.5, 3.0) is None  # touchdown in 4 s: not yet
+    assert projected_miss_m(view, np.array([0.0, 0.0]), 0.0, 3.0) is None  # hovering
+
+
+def test_rule_takes_over_on_a_predicted_miss_before_the_pad_reaches_the_edge() -> None:
+    """3 m up, pad 0.4 m ahead, drifting away at 0.4 m/s, descending 1 m/s: a person sees
+    the miss coming (1.6 m off at touchdown) long before the pad leaves the image."""
+    drifting = obs(pad_at(0.4, 0.0, 3.0), velocity=(-0.4, 0.0, 1.0))
+    state = InterventionRule(CFG).update(drifting)
+    assert state.holding and state.reason == "heading for a miss"
+    closing = obs(pad_at(0.4, 0.0, 3.0), velocity=(0.13, 0.0, 1.0))
+    assert not InterventionRule(CFG).update(closing).holding
+    blind = CFG.model_copy(update={"takeover_predicted_miss_m": 0.0})
+    assert not InterventionRule(blind).update(drifting).holding  # 0 disables the prediction
+
+
+def test_rule_takes_over_on_a_fast_descent_near_the_ground_only() -> None:
+    assert InterventionRule(CFG).update(obs(pad_at(0.0, 0.0, 1.5), velocity=(0.0, 0.0, 0.9))).holding
+    assert not InterventionRule(CFG).update(obs(pad_at(0.0, 0.0, 5.0), velocity=(0.0, 0.0, 0.9))).holding
+
+
+def test_a_take_over_starts_from_a_fresh_trim_not_from_the_drift_seen_while_watching() -> None:
+    """Watching a policy hover 1 m off the pad for seconds winds the expert's trim up; at the
+    take-over the label must not carry it."""
+    pilot = InterveningExpert(CFG.model_copy(update={"takeover_stall_s": 0.0, "takeover_predicted_miss_m": 0.0}))
+    fresh = ScriptedExpert(CFG)
+    for t in range(40):  # 4 s watching: no danger, the trim integrates the offset
+        assert not pilot.read(obs(pad_at(1.0, 0.0, 6.0), t_ms=100 * t)).override_held
+    assert pilot.expert._trim[0] > 0.1
+    danger = obs(PadDetection(W_PX - 5.0, CY, 20.0, False), t_ms=4000)
+    taken = pilot.read(danger)
+    assert taken.override_held and taken.command == fresh.command(danger)
 
 
 def test_rule_ignores_a_blink_but_not_a_lost_pad() -> None:

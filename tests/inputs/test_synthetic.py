@@ -137,16 +137,34 @@ def test_episodes_are_seeded_by_profile_trial_and_episode() -> None:
 
 def test_patience_scales_the_takeover_thresholds_and_keeps_the_config_valid() -> None:
     base = PilotConfig()
-    patient = profile(patience=2.0).rule_config(base)
+    patient = profile(patience=2.0).pilot_config(base)
     assert patient.takeover_descent_m_s == pytest.approx(2 * base.takeover_descent_m_s)
     assert patient.takeover_off_centre_m == pytest.approx(2 * base.takeover_off_centre_m)
     assert patient.takeover_stall_s == pytest.approx(2 * base.takeover_stall_s)
     assert patient.takeover_edge_fraction == pytest.approx(0.98)  # capped: the pad must stay on screen
-    eager = profile(patience=0.25).rule_config(base)
+    eager = profile(patience=0.25).pilot_config(base)
     assert eager.takeover_off_centre_m == pytest.approx(0.15)
     assert eager.release_off_centre_m <= eager.takeover_off_centre_m
     for cfg in (patient, eager):
         PilotConfig.model_validate(cfg.model_dump())  # the section's own checks still pass
+
+
+def test_profiles_differ_in_strategy_not_only_in_noise() -> None:
+    base = PilotConfig()
+    configs = {name: p.pilot_config(base) for name, p in PROFILES.items()}
+    assert len({c.anticipation_s for c in configs.values()}) == 4
+    assert len({c.takeover_predicted_miss_m for c in configs.values()}) == 4
+    assert configs["P3"].xy_gain_per_m > base.xy_gain_per_m > configs["P4"].xy_gain_per_m
+    assert configs["P3"].descent_stick_fast < base.descent_stick_fast < configs["P4"].descent_stick_fast
+    for cfg in configs.values():
+        PilotConfig.model_validate(cfg.model_dump())
+
+
+@pytest.mark.parametrize("changes", [{"anticipation_s": -1.0}, {"miss_margin_m": 0.0},
+                                     {"correction_gain": 5.0}, {"descent_scale": 2.0}])
+def test_profile_rejects_bad_strategies(changes: dict[str, object]) -> None:
+    with pytest.raises(ConfigError):
+        profile(**changes)
 
 
 def test_a_patient_pilot_takes_over_later() -> None:
