@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from machine_ref import machine_ref_rt
 
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig, load_companion_config
@@ -271,6 +272,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.switch_interval_ms is not None:
         sys.setswitchinterval(args.switch_interval_ms / 1000.0)
+    machine_ref = machine_ref_rt()  # at the start, before the bench's own work
     steps = args.steps or (300 if args.quick else 2000)
     cfg = load_companion_config(args.config)
     t0 = time.monotonic()
@@ -278,6 +280,7 @@ def main() -> None:
     result = report(times, outcomes, time.monotonic() - t0, args.pilot)
     result["switch_interval_ms"] = round(sys.getswitchinterval() * 1000.0, 3)
     result["pinned"], result["sitl_nice"] = args.pin, args.sitl_nice
+    result["machine_ref_rt"] = round(machine_ref, 1)
     print(f"{result['steps']} control steps: latency p50 {result['latency_ms_p50']} ms, "
           f"p99 {result['latency_ms_p99']} ms (camera wait p99 {result['camera_wait_ms_p99']} ms)")
     print(json.dumps(result))

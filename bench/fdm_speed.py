@@ -13,6 +13,8 @@ import json
 import math
 import time
 
+from machine_ref import machine_ref_rt
+
 from sitl.config import SitlConfig
 from sitl.control import FlightController, Setpoint
 from sitl.dynamics import Dynamics
@@ -63,6 +65,7 @@ def main() -> None:
     parser.add_argument("--sim-s", type=float, default=60.0, help="simulated seconds per run")
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
+    machine_ref = machine_ref_rt()  # at the start, before the bench's own work
     sim_s, repeats = (10.0, 1) if args.quick else (args.sim_s, args.repeats)
     cfg = SitlConfig()
     runs = [fly(sim_s, cfg) for _ in range(max(1, repeats))]
@@ -77,6 +80,7 @@ def main() -> None:
         "fdm_rate_hz": cfg.clock.fdm_rate_hz,
         "repeats": len(runs),
         "note": "best of repeats; shared machine, load varies",
+        "machine_ref_rt": round(machine_ref, 1),
     }
     print(json.dumps(result))
 

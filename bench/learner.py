@@ -32,6 +32,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from machine_ref import machine_ref_rt  # noqa: E402
+
 from companion.config import LearnerConfig  # noqa: E402
 from companion.learning.dataset import HumanDataset, Sample, Source  # noqa: E402
 from companion.learning.learner import Learner  # noqa: E402
@@ -212,11 +214,13 @@ def main() -> None:
     duration_s = args.duration_s or (8.0 if args.quick else 60.0)
     config = LearnerConfig()
     kind = args.runner or (config.mode if config.mode in ("thread", "process") else "thread")
+    machine_ref = machine_ref_rt()  # at the start, before the bench's own work (and --busy-procs)
     with busy_processes(args.busy_procs):
-        run_all(args, config, kind, duration_s)
+        run_all(args, config, kind, duration_s, machine_ref)
 
 
-def run_all(args: argparse.Namespace, config: LearnerConfig, kind: str, duration_s: float) -> None:
+def run_all(args: argparse.Namespace, config: LearnerConfig, kind: str, duration_s: float,
+            machine_ref: float) -> None:
     """Update rate, idle loop, live run, idle loop; prints the JSON line."""
     if args.control_guard_s is not None:
         config = config.model_copy(update={"control_guard_s": args.control_guard_s})
@@ -249,6 +253,7 @@ def run_all(args: argparse.Namespace, config: LearnerConfig, kind: str, duration
         "cpu_count": os.cpu_count(),
         "loadavg_1min": round(os.getloadavg()[0], 2),
         "note": "shared machine: other engineers' jobs run concurrently",
+        "machine_ref_rt": round(machine_ref, 1),
     }
     print(json.dumps(result))
 

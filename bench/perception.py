@@ -22,6 +22,7 @@ import time
 
 import cv2
 import numpy as np
+from machine_ref import machine_ref_rt
 
 from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer
@@ -151,9 +152,12 @@ def main() -> None:
     parser.add_argument("--noise", action="store_true", help="Gaussian sensor noise, sigma 8 levels")
     parser.add_argument("--jpeg", action="store_true", help="send frames through the JPEG wire encoding")
     args = parser.parse_args()
+    machine_ref = machine_ref_rt()  # at the start, before the bench's own work
     frames = args.frames or (100 if args.quick else 600)
     conditions = {k: getattr(args, k) for k in ("lighting", "blur", "noise", "jpeg")}
-    print(json.dumps(run(frames, args.seed, conditions)))
+    result = run(frames, args.seed, conditions)
+    result["machine_ref_rt"] = round(machine_ref, 1)
+    print(json.dumps(result))
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from machine_ref import machine_ref_rt  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from companion.simulator import SimulatorClient, start_sitl  # noqa: E402
@@ -103,6 +104,7 @@ def main() -> None:
     ap.add_argument("--sim-seconds", type=float, default=60.0, help="simulated flight per measurement (>= 60 for the goal)")
     ap.add_argument("--quick", action="store_true", help="10 s each, for a smoke run")
     args = ap.parse_args()
+    machine_ref = machine_ref_rt()  # at the start, before the bench's own work
     sim_s = 10.0 if args.quick else args.sim_seconds
     fdm = in_process_factor(sim_s)
     lock, extra = lockstep_factor(sim_s)
@@ -114,6 +116,7 @@ def main() -> None:
         "final_mode": extra["mode"],
         "goal_lockstep_realtime_factor": 100,
         "machine": f"{platform.machine()} {platform.processor() or ''} cpus={__import__('os').cpu_count()}".strip(),
+        "machine_ref_rt": round(machine_ref, 1),
     }
     print(json.dumps(result))
 
