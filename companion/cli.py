@@ -212,11 +212,17 @@ def experiment(
     workers: Annotated[int | None, typer.Option(min=1, help="trials side by side, each with its own SITL (default: the number of CPUs)")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="results folder; run again with the same folder to resume (default: runs/<config name>)")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="a smoke run: configs/experiment_quick.toml unless --config is given")] = False,
+    verify: Annotated[Path | None, typer.Option("--verify", help="instead: rerun --trials finished trials of this results folder, chosen at random, and compare their lines byte for byte")] = None,
+    trials: Annotated[int, typer.Option("--trials", min=1, help="with --verify: how many trials to rerun")] = 2,
+    seed: Annotated[int | None, typer.Option("--seed", help="with --verify: which trials are chosen (default: at random)")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's experiment with synthetic participants: every trial of the grid, then a
     report (Markdown table beside the paper's numbers, PNG plots) in the results folder."""
     _setup(verbose)
+    if verify is not None:
+        _verify(verify, trials, seed)
+        return
     from companion.experiment.grid import load_experiment
     from companion.experiment.report import write_report
     from companion.experiment.runner import run_grid
@@ -234,6 +240,27 @@ def experiment(
         raise typer.Exit(130) from None
     typer.echo(report.read_text())
     typer.echo(json.dumps({"trials": len(results), "report": str(report), "results": str(out_dir / "results.jsonl")}))
+
+
+def _verify(results_dir: Path, trials: int, seed: int | None) -> None:
+    """``col experiment --verify``: exit 1 when a rerun trial writes another line."""
+    import tempfile
+
+    from companion.experiment.verify import verify
+
+    try:
+        with tempfile.TemporaryDirectory(prefix="col-verify-") as work:
+            checks = verify(results_dir, trials, Path(work), seed)
+    except ColError as exc:
+        raise _fail(exc) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    for check in checks:
+        typer.echo(f"{check.key}: " + ("identical" if check.identical else f"DIFFERS {check.differences()}"))
+    same = sum(c.identical for c in checks)
+    typer.echo(json.dumps({"verified": len(checks), "identical": same, "trials": [c.key for c in checks]}))
+    if same != len(checks):
+        raise typer.Exit(1)
 
 
 @app.command()

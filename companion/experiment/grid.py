@@ -9,6 +9,7 @@ companion and the SITL as usual.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -122,9 +123,13 @@ class TrainingRun:
     evaluated_at: tuple[int, ...]
 
     def __post_init__(self) -> None:
-        if not self.evaluated_at or max(self.evaluated_at) != self.episodes or min(self.evaluated_at) < 1:
-            raise ConfigError(f"a training run is evaluated at counts in [1, episodes] including "
-                              f"its last episode, got {self.evaluated_at} for {self.episodes}")
+        counts = self.evaluated_at
+        if not counts or list(counts) != sorted(set(counts)) or counts[0] < 1 or counts[-1] > self.episodes:
+            raise ConfigError(f"a training run is evaluated at increasing counts in [1, episodes], "
+                              f"got {counts} for {self.episodes} episodes")
+        if self.condition not in PREFIX_CONDITIONS and counts != (self.episodes,):
+            raise ConfigError(f"a {self.condition} run answers only its own count {self.episodes}: "
+                              "its schedule depends on the episode count")
 
     @property
     def trials(self) -> list[Trial]:
@@ -132,8 +137,12 @@ class TrainingRun:
 
     @property
     def key(self) -> str:
-        """The key of its longest trial, whose folder holds the training run."""
-        return self.trials[-1].key
+        """The key of the trial as long as the run, whose folder holds the training run."""
+        return Trial(self.participant, self.condition, self.episodes, self.seed).key
+
+    def only(self, interactions: int) -> TrainingRun:
+        """The same run evaluated at one of its counts (to recheck one trial as it was made)."""
+        return dataclasses.replace(self, evaluated_at=(interactions,))
 
 
 def plan(exp: ExperimentConfig, trials: list[Trial] | None = None) -> list[TrainingRun]:

@@ -18,6 +18,7 @@ from companion.errors import DatasetCorrupt
 from companion.experiment.grid import Trial
 
 Status = Literal["ok", "error"]
+TIMING_FIELDS = ("train_wall_s", "eval_wall_s")
 
 
 @dataclass(frozen=True)
@@ -53,9 +54,17 @@ class TrialResult:
         return 100.0 * self.eval_successes / self.eval_runs if self.eval_runs else 0.0
 
     def to_json_dict(self) -> dict[str, Any]:
-        data = asdict(self)
+        """What the trial produced, and nothing that depends on the machine: wall times are
+        written apart (:meth:`timing`), so a rerun of a trial writes the same line."""
+        data = {k: v for k, v in asdict(self).items() if k not in TIMING_FIELDS}
         data["trial"]["key"] = self.trial.key
         return data
+
+    def to_json_line(self) -> str:
+        return json.dumps(self.to_json_dict())
+
+    def timing(self) -> dict[str, Any]:
+        return {"trial": self.trial.key, **{k: getattr(self, k) for k in TIMING_FIELDS}}
 
     @classmethod
     def from_json_dict(cls, data: dict[str, Any]) -> TrialResult:
@@ -95,14 +104,21 @@ class ResultsFile:
                 done[result.trial.key] = result
         return done
 
+    @property
+    def timings_path(self) -> Path:
+        """``timings.jsonl`` beside the results: wall times, which differ from run to run."""
+        return self.path.with_name("timings.jsonl")
+
     def append(self, result: TrialResult) -> None:
-        """Add one line and make it durable before returning."""
+        """Add one line and make it durable before returning (its wall times go apart)."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._drop_torn_tail()
         with self.path.open("a") as fh:
-            fh.write(json.dumps(result.to_json_dict()) + "\n")
+            fh.write(result.to_json_line() + "\n")
             fh.flush()
             os.fsync(fh.fileno())
+        with self.timings_path.open("a") as fh:
+            fh.write(json.dumps(result.timing()) + "\n")
 
     def _drop_torn_tail(self) -> None:
         """Cut a line left unfinished by a crash (its trial runs again), so lines stay whole."""

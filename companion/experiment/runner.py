@@ -42,6 +42,8 @@ if TYPE_CHECKING:
     from companion.control.session import EpisodeRecord
 
 log = logging.getLogger(__name__)
+CONFIG_COPY = "config.toml"
+"""The experiment file, copied into the results folder so that its trials can be rerun."""
 RunFn = Callable[[ExperimentSetup, TrainingRun, Path], list[TrialResult]]
 
 
@@ -197,3 +199,5 @@ def _write_setup(setup: ExperimentSetup, out_dir: Path, trials: int, done: int) 
               "experiment": setup.exp.model_dump(mode="json"),
               "companion": setup.companion.model_dump(mode="json")}
     (out_dir / "experiment.json").write_text(json.dumps(record, indent=1) + "\n")
+    if setup.config_path is not None:  # what `col experiment --verify` reruns trials with
+        shutil.copyfile(setup.config_path, out_dir / CONFIG_COPY)

@@ -172,8 +172,13 @@ def test_a_resumed_plan_trains_only_as_far_as_the_missing_counts() -> None:
     assert plan(exp, missing) == [TrainingRun("P1", "demo", 0, 8, (4, 8))]
     whole = ExperimentConfig(participants=("P1",), conditions=("demo",), interactions=(4, 8), prefix_evaluation=False)
     assert sorted(r.episodes for r in plan(whole)) == [4, 8]
+    assert TrainingRun("P1", "demo", 0, 8, (4, 8)).only(4) == TrainingRun("P1", "demo", 0, 8, (4,))
+    assert TrainingRun("P1", "demo", 0, 8, (4,)).key == "P1-demo-08-s0"  # the run's folder
+    for bad in ((4, 9), (8, 4), (4, 4), (0, 8)):
+        with pytest.raises(ConfigError):
+            TrainingRun("P1", "demo", 0, 8, bad)
     with pytest.raises(ConfigError):
-        TrainingRun("P1", "demo", 0, 8, (4,))  # the last count must be the run's own length
+        TrainingRun("P1", "col", 0, 8, (4, 8))  # CoL@4 is not a prefix of CoL@8
 
 
 def test_mean_and_standard_error() -> None:
@@ -292,3 +297,30 @@ def test_the_full_paper_grid(tmp_path: Path) -> None:
     results = run_grid(setup, tmp_path, workers=2, progress=False)
     assert len(results) == 48
     assert "| 20 | CoL |" in write_report(results, tmp_path).read_text()
+
+
+@pytest.mark.e2e
+def test_verify_reruns_committed_trials_and_catches_a_changed_line(tmp_path: Path) -> None:
+    """A 2-trial grid (Demo@1 read from a 2-episode run, Demo@2), then `--verify`: each rerun
+    writes its committed line byte for byte; a line edited by hand is caught."""
+    from companion.cli import app
+
+    config = tmp_path / "tiny.toml"
+    quick = (REPO / "configs" / "experiment_quick.toml").read_text()
+    config.write_text(quick.replace('conditions = ["demo", "col"]', 'conditions = ["demo"]')
+                      .replace("interactions = [2]", "interactions = [1, 2]").replace("eval_runs = 3", "eval_runs = 2"))
+    out = tmp_path / "grid"
+    made = CliRunner().invoke(app, ["experiment", "--config", str(config), "--workers", "1", "--out", str(out)])
+    assert made.exit_code == 0, made.output
+    assert (out / "config.toml").read_text() == config.read_text()
+    assert len((out / "timings.jsonl").read_text().splitlines()) == 2
+    assert "wall_s" not in (out / "results.jsonl").read_text()
+    ok = CliRunner().invoke(app, ["experiment", "--verify", str(out), "--trials", "2"])
+    assert ok.exit_code == 0, ok.output
+    assert json.loads(ok.output.strip().splitlines()[-1])["identical"] == 2
+    lines = (out / "results.jsonl").read_text().splitlines()
+    tampered = [line.replace('"eval_successes": ', '"eval_successes": 1 + ', 1) for line in lines]
+    tampered = [json.dumps({**json.loads(line.replace("1 + ", "")), "human_samples": 1}) for line in tampered]
+    (out / "results.jsonl").write_text("\n".join(tampered) + "\n")
+    bad = CliRunner().invoke(app, ["experiment", "--verify", str(out), "--trials", "1", "--seed", "0"])
+    assert bad.exit_code == 1 and "DIFFERS" in bad.output and "human_samples" in bad.output
