@@ -1,6 +1,7 @@
 """The paper's Update-Policy procedure (Algorithm 1): supervised updates on the human dataset.
 
-``Learner`` owns the model, RMSProp and the MSE loss. ``step()`` is one plain, deterministic
+``Learner`` owns the model's trainer (:class:`~companion.learning.trainer.MlpTrainer`: MSE,
+RMSProp) and the paper's loop. ``step()`` is one plain, deterministic
 update (seeded minibatch); ``train_until_converged()`` is the paper's loop - whenever the dataset
 holds new samples, update until the minibatch loss is below the threshold or the round reaches
 ``max_updates`` - and can stop after a budget of updates and resume where it was.
@@ -22,12 +23,12 @@ from typing import Protocol
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.dataset import DatasetView
 from companion.learning.policy import Normalisation, PolicyNet, PolicySnapshot
+from companion.learning.trainer import MlpTrainer, one_blas_thread
 from companion.vision.observation import OBS_DIM
 
 log = logging.getLogger(__name__)
@@ -75,10 +76,10 @@ class Learner:
         self.config = config
         self.dataset = dataset
         self.rng = rng if rng is not None else np.random.default_rng(config.seed)
-        self.model = self._make_model(config, obs_dim, normalisation, initial)
-        self.optimizer = torch.optim.RMSprop(
-            self.model.parameters(), lr=config.learning_rate, foreach=True
-        )
+        model = self._make_model(config, obs_dim, normalisation, initial)
+        one_blas_thread()  # process-wide: threaded BLAS is ~10x slower on these small products
+        self.trainer = MlpTrainer.from_snapshot(model.snapshot(), lr=config.learning_rate,
+                                                batch_size=config.batch_size)
         self.updates = initial.version if initial else 0
         self.last_loss = math.nan
         self._lock = threading.RLock()
@@ -87,7 +88,7 @@ class Learner:
         self._round_updates = 0
         self._converged = False
         self._since_publish = 0
-        self._latest = self.model.snapshot(self.updates, self._trained_size)
+        self._latest = self.trainer.snapshot(self.updates, self._trained_size)
 
     @staticmethod
     def _make_model(config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
@@ -116,18 +117,12 @@ class Learner:
             if n == 0:
                 raise ValueError("the dataset is empty; record samples before training")
             idx = self.rng.integers(0, n, size=self.config.batch_size)
-            obs = torch.from_numpy(view.obs[idx])
-            target = torch.from_numpy(view.actions[idx])
-            loss = F.mse_loss(self.model(obs), target)
-            value = float(loss.item())
-            if not math.isfinite(value):
+            try:
+                value = self.trainer.step(view.obs[idx], view.actions[idx])
+            except FloatingPointError as exc:
                 raise FloatingPointError(
-                    f"training loss became {value} at update {self.updates + 1}; check the "
-                    "dataset for extreme observations or lower learning_rate"
-                )
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self.optimizer.step()
+                    f"{exc}; check the dataset for extreme observations or lower learning_rate"
+                ) from None
             self.updates += 1
             self._trained_size = n
             self._since_publish += 1
@@ -189,7 +184,7 @@ class Learner:
     def publish(self) -> PolicySnapshot:
         """Copy the weights into a new snapshot and swap it in with one assignment."""
         with self._lock:
-            snap = self.model.snapshot(self.updates, self._trained_size)
+            snap = self.trainer.snapshot(self.updates, self._trained_size)
             self._latest = snap
             self._since_publish = 0
             return snap
@@ -203,8 +198,8 @@ class Learner:
         """Make a snapshot trained elsewhere (the learner process) this learner's latest.
 
         One assignment, cheap enough for the control tick, so checkpoints and ``latest_snapshot``
-        see the process's training. The torch model here is not changed: to train in this
-        process afterwards, build a new Learner with ``initial=snapshot``.
+        see the process's training. The trainer here is not changed: to train in this process
+        afterwards, build a new Learner with ``initial=snapshot``.
         """
         self._latest = snapshot
 

@@ -281,7 +281,7 @@ def _child_main(conn: Connection, job: _ChildJob) -> None:
         learner = Learner(job.config, tail, obs_dim=job.initial.obs_dim, initial=job.initial,
                           rng=job.rng)
         if job.optimizer_state:
-            learner.optimizer.load_state_dict(_to_torch(job.optimizer_state))
+            learner.trainer.load_state(job.optimizer_state)
         _lower_process_priority(job.config.thread_nice)  # after the set-up, which control awaits
         _train_until_stopped(learner, tail, link, job.idle_poll_s)
         if learner.updates > learner.latest_snapshot.version:
@@ -323,27 +323,6 @@ def _lower_process_priority(nice: int) -> None:
             os.nice(max(0, nice - os.nice(0)))
         except OSError:
             pass  # not allowed here: train at the inherited priority
-
-
-def _to_numpy(obj: Any) -> Any:
-    """An optimiser state with NumPy arrays in place of tensors (pickles without torch's IPC)."""
-    if isinstance(obj, torch.Tensor):
-        return obj.detach().cpu().numpy().copy()
-    if isinstance(obj, dict):
-        return {k: _to_numpy(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return type(obj)(_to_numpy(v) for v in obj)
-    return obj
-
-
-def _to_torch(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return torch.from_numpy(obj)
-    if isinstance(obj, dict):
-        return {k: _to_torch(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return type(obj)(_to_torch(v) for v in obj)
-    return obj
 
 
 # -- the control side ---------------------------------------------------------------------------
@@ -414,7 +393,7 @@ class LearnerProcess:
         dataset = self.learner.dataset
         job = _ChildJob(self.learner.config, self.csv_path,
                         tuple(getattr(dataset, "obs_names", OBS_NAMES)), self._latest,
-                        self.learner.rng, _to_numpy(self.learner.optimizer.state_dict()),
+                        self.learner.rng, self.learner.trainer.state(),
                         self.idle_poll_s)
         self._process = ctx.Process(target=_child_main, args=(child_conn, job),
                                     name="col-learner", daemon=True)

@@ -244,7 +244,7 @@ def test_readers_never_see_a_half_updated_snapshot(rng: np.random.Generator) -> 
     publish = learner.publish
 
     def recording_publish() -> PolicySnapshot:
-        snap = learner.model.snapshot(learner.updates, 0)
+        snap = learner.trainer.snapshot(learner.updates, 0)
         published[snap.version] = _digest(snap)  # recorded before the swap
         return publish()
 

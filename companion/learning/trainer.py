@@ -1,0 +1,176 @@
+"""The learner's update: the policy MLP's forward, MSE loss, backward and RMSprop in NumPy.
+
+Computes what ``PolicyNet`` + ``F.mse_loss`` + ``torch.optim.RMSprop`` (no momentum, not
+centred, no weight decay) compute, up to float32 round-off: forward ``(obs - mean) / std``
+-> ReLU hidden layers -> ``tanh``; loss = mean over all ``batch x actions`` elements of the
+squared error; ``sq = alpha*sq + (1-alpha)*g*g``, ``p -= lr*g / (sqrt(sq) + eps)`` in torch's
+operation order. The normalisation is fixed (a buffer in torch): it is never trained. One
+update agrees with torch to round-off; over hundreds, two float32 runs can drift apart when a
+ReLU input sits within round-off of 0 (torch float64 against float32 drifts the same way).
+
+Why NumPy: a minibatch-64 update of this small network is mostly per-call overhead, about
+1 us per NumPy call against 2-4 us per torch call; this runs about 4x as many updates per
+second as autograd + torch.optim (bench/learner.py).
+
+Layout: layer ``k`` is one matrix ``A_k = [[W_k.T], [b_k]]`` of shape ``(in+1, out)`` and
+every layer input carries a trailing column of ones, so the bias rides inside the matrix
+product. All ``A_k`` live in one flat buffer, as do their gradients and RMSprop state, so the
+optimiser is nine whole-buffer NumPy calls; a step allocates nothing.
+
+NumPy's BLAS starts as many threads as cores: on a busy 2-core machine a threaded 64x130x72
+product is about 10x *slower* than a single-threaded one, so the learner runs its updates
+under ``threadpoolctl.threadpool_limits(1)`` (:func:`one_blas_thread`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from itertools import pairwise
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from companion.learning.policy import Normalisation, PolicySnapshot
+
+F32 = np.float32
+
+
+class MlpTrainer:
+    """MLP weights + RMSprop state as float32 NumPy buffers; ``step()`` is one update."""
+
+    def __init__(self, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
+                 mean: np.ndarray, std: np.ndarray, *, lr: float = 1e-4, alpha: float = 0.99,
+                 eps: float = 1e-8, batch_size: int = 64) -> None:
+        sizes = [int(np.shape(weights[0])[1])] + [int(np.shape(w)[0]) for w in weights]
+        if len(weights) != len(biases) or any(
+                np.shape(w) != (o, i) or np.shape(b) != (o,)
+                for w, b, i, o in zip(weights, biases, sizes[:-1], sizes[1:], strict=True)):
+            raise ValueError("weights (out, in) and biases (out,) must chain layer to layer")
+        total = sum((i + 1) * o for i, o in pairwise(sizes))
+        self._p, self._g, self._sq, self._den, self._num = (np.zeros(total, F32) for _ in range(5))
+        self._A: list[np.ndarray] = []
+        self._gA: list[np.ndarray] = []
+        self._sqA: list[np.ndarray] = []
+        off = 0
+        for i, o in pairwise(sizes):
+            for flat, views in ((self._p, self._A), (self._g, self._gA), (self._sq, self._sqA)):
+                views.append(flat[off:off + (i + 1) * o].reshape(i + 1, o))
+            off += (i + 1) * o
+        for a, w, b in zip(self._A, weights, biases):
+            a[:-1] = np.asarray(w, F32).T
+            a[-1] = b
+        self._AwT = [a[:-1].T for a in self._A]  # W (out, in) views for dX = dZ @ W
+        self.mean, self.std = np.array(mean, F32), np.array(std, F32)
+        self.lr, self.alpha, self.eps = lr, alpha, eps
+        self._c = (F32(alpha), F32(1 - alpha), F32(eps), F32(-lr))  # torch casts them alike
+        self.updates = 0  # RMSprop's step count
+        self.sizes = tuple(sizes)
+        self._alloc(batch_size)
+
+    def _alloc(self, n: int) -> None:
+        s = self.sizes
+        self._xa = [np.ones((n, k + 1), F32) for k in s[:-1]]  # layer inputs + ones column
+        self._xv = [xa[:, :-1] for xa in self._xa]
+        self._dz = [np.empty((n, k), F32) for k in s[1:]]  # dLoss/d(pre-activation)
+        self._mask = [np.empty((n, k), F32) for k in s[1:]]
+        self._raw, self._y, self._diff = (np.empty((n, k), F32) for k in (s[0], s[-1], s[-1]))
+        self._flat_diff = self._diff.reshape(-1)
+        self._norm = F32(2.0 / (n * s[-1]))  # d mean((y-t)^2) / dy = 2 (y-t) / numel
+
+    def step(self, obs_batch: np.ndarray, target_batch: np.ndarray) -> float:
+        """One RMSprop update on ``(obs, target)`` rows; returns the MSE before the update.
+
+        Raises FloatingPointError on a non-finite loss, leaving weights and state untouched.
+        """
+        if obs_batch.shape[0] != self._raw.shape[0]:
+            self._alloc(obs_batch.shape[0])
+        if obs_batch.shape != self._raw.shape or target_batch.shape != self._y.shape:
+            raise ValueError(f"need obs {self._raw.shape} and targets {self._y.shape}, got "
+                             f"{obs_batch.shape} and {target_batch.shape}")
+        xa, xv, A, dz, mask, zero = self._xa, self._xv, self._A, self._dz, self._mask, F32(0)
+        np.subtract(obs_batch, self.mean, out=self._raw)
+        np.divide(self._raw, self.std, out=xv[0])
+        last = len(A) - 1
+        for k in range(last):
+            np.matmul(xa[k], A[k], out=xv[k + 1])
+            np.maximum(xv[k + 1], zero, out=xv[k + 1])
+        y = np.matmul(xa[last], A[last], out=self._y)
+        np.tanh(y, out=y)
+        diff = np.subtract(y, target_batch, out=self._diff)
+        loss = float(np.dot(self._flat_diff, self._flat_diff) / F32(diff.size))
+        if not math.isfinite(loss):
+            raise FloatingPointError(f"training loss became {loss} at update {self.updates + 1}")
+        np.multiply(y, y, out=mask[last])  # tanh' = 1 - y^2
+        np.subtract(1, mask[last], out=mask[last])
+        np.multiply(diff, self._norm, out=dz[last])
+        np.multiply(dz[last], mask[last], out=dz[last])
+        for k in range(last, -1, -1):
+            np.matmul(xa[k].T, dz[k], out=self._gA[k])  # [dW.T; db] in one GEMM
+            if k:
+                np.matmul(dz[k], self._AwT[k], out=dz[k - 1])
+                np.greater(xv[k], zero, out=mask[k - 1])  # ReLU' from its output
+                np.multiply(dz[k - 1], mask[k - 1], out=dz[k - 1])
+        self._rmsprop()
+        self.updates += 1
+        return loss
+
+    def _rmsprop(self) -> None:
+        alpha, one_m_alpha, eps, neg_lr = self._c
+        sq, g, den, num = self._sq, self._g, self._den, self._num
+        np.multiply(sq, alpha, out=sq)  # sq.mul_(alpha).addcmul_(g, g, value=1-alpha)
+        np.multiply(g, one_m_alpha, out=num)
+        np.multiply(num, g, out=num)
+        np.add(sq, num, out=sq)
+        np.sqrt(sq, out=den)  # den = sq.sqrt().add_(eps)
+        np.add(den, eps, out=den)
+        np.multiply(g, neg_lr, out=num)  # p.addcdiv_(g, den, value=-lr)
+        np.divide(num, den, out=num)
+        np.add(self._p, num, out=self._p)
+
+    # -- interop with the project's torch model, optimiser and snapshots -----------------------
+    def weights(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """Copies of ``(weights (out, in), biases (out,))`` in PolicyNet's layer order."""
+        return tuple(a[:-1].T.copy() for a in self._A), tuple(a[-1].copy() for a in self._A)
+
+    def square_avgs(self) -> list[np.ndarray]:
+        """RMSprop's ``square_avg`` in ``PolicyNet.parameters()`` order (W0, b0, W1, ...)."""
+        return [x for s in self._sqA for x in (s[:-1].T.copy(), s[-1].copy())]
+
+    def load_square_avgs(self, avgs: Sequence[np.ndarray], updates: int) -> None:
+        """Set RMSprop's state from per-parameter arrays in :meth:`square_avgs`' order (as
+        ``torch.optim.RMSprop`` keeps them), e.g. to continue a torch optimiser's run."""
+        if len(avgs) != 2 * len(self._sqA):
+            raise ValueError(f"need {2 * len(self._sqA)} arrays (W0, b0, W1, ...), got {len(avgs)}")
+        for k, sq in enumerate(self._sqA):
+            sq[:-1] = np.asarray(avgs[2 * k], F32).T
+            sq[-1] = avgs[2 * k + 1]
+        self.updates = int(updates)
+
+    @classmethod
+    def from_snapshot(cls, snap: PolicySnapshot, **kw: Any) -> MlpTrainer:
+        """Weights and normalisation of a snapshot (hyper-parameters: keyword arguments)."""
+        return cls(snap.weights, snap.biases, snap.normalisation.mean, snap.normalisation.std, **kw)
+
+    def snapshot(self, version: int = 0, dataset_size_trained: int = 0) -> PolicySnapshot:
+        """A frozen PolicySnapshot of the current weights (what the control loop flies)."""
+        ws, bs = self.weights()
+        return PolicySnapshot(ws, bs, Normalisation(self.mean, self.std), version, dataset_size_trained)
+
+    def state(self) -> dict[str, Any]:
+        """RMSprop's state (square averages, step count): what another process needs to go on."""
+        return {"square_avg": self._sq.copy(), "updates": self.updates}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        """Take over :meth:`state` of a trainer of the same shape."""
+        sq = np.asarray(state["square_avg"], F32)
+        if sq.shape != self._sq.shape:
+            raise ValueError(f"optimiser state of {sq.shape[0]} values, this trainer has {self._sq.shape[0]}")
+        self._sq[:] = sq
+        self.updates = int(state["updates"])
+
+
+def one_blas_thread() -> Any:
+    """A context in which NumPy's matrix products run on one thread (see the module docstring)."""
+    return threadpool_limits(1, user_api="blas")
