@@ -212,6 +212,8 @@ def experiment(
     workers: Annotated[int | None, typer.Option(min=1, help="trials side by side, each with its own SITL (default: the number of CPUs)")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="results folder; run again with the same folder to resume (default: runs/<config name>)")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="a smoke run: configs/experiment_quick.toml unless --config is given")] = False,
+    backend: Annotated[str, typer.Option("--backend", help="process: local worker processes; ray: Ray tasks on a cluster (pip install '.[cluster]')")] = "process",
+    address: Annotated[str | None, typer.Option("--address", help="with --backend ray: the cluster's address (HOST:PORT of `ray start --head`); default: a local instance")] = None,
     verify: Annotated[Path | None, typer.Option("--verify", help="instead: rerun --trials finished trials of this results folder, chosen at random, and compare their lines byte for byte")] = None,
     trials: Annotated[int, typer.Option("--trials", min=1, help="with --verify: how many trials to rerun")] = 2,
     seed: Annotated[int | None, typer.Option("--seed", help="with --verify: which trials are chosen (default: at random)")] = None,
@@ -231,7 +233,8 @@ def experiment(
     out_dir = out or Path("runs") / path.stem
     try:
         setup = load_experiment(path)
-        results = run_grid(setup, out_dir, workers or os.cpu_count() or 1)
+        results = run_grid(setup, out_dir, workers or os.cpu_count() or 1, backend=backend,  # type: ignore[arg-type]
+                           address=address)
         report = write_report(results, out_dir)
     except ColError as exc:
         raise _fail(exc) from None

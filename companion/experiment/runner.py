@@ -20,13 +20,13 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 from tqdm import tqdm
 
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
-from companion.errors import ColError
+from companion.errors import ColError, ConfigError
 from companion.experiment.grid import (
     START_SEEDS_PER_REPLICATE,
     ExperimentSetup,
@@ -150,11 +150,21 @@ def _init_worker() -> None:
     torch.set_num_threads(1)
 
 
+Backend = Literal["process", "ray"]
+
+
 def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool = True,
-             run_fn: RunFn = run_training) -> list[TrialResult]:
-    """Run every trial of the grid not yet in ``out_dir/results.jsonl``; all results, grid order."""
+             run_fn: RunFn = run_training, backend: Backend = "process",
+             address: str | None = None) -> list[TrialResult]:
+    """Run every trial of the grid not yet in ``out_dir/results.jsonl``; all results, grid order.
+
+    ``backend`` "process" runs ``workers`` training runs side by side in local processes;
+    "ray" runs them as Ray tasks on the cluster at ``address`` (None: a local instance of
+    ``workers`` CPUs; see :mod:`companion.experiment.ray_backend`).
+    """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    out_dir = out_dir.resolve()  # Ray workers may run in another working directory
     out_dir.mkdir(parents=True, exist_ok=True)
     results = ResultsFile(out_dir / "results.jsonl")
     fingerprint = setup.fingerprint()
@@ -165,7 +175,7 @@ def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool
     bar = tqdm(total=len(trials), initial=len(trials) - len(todo), unit="trial", desc="experiment",
                disable=not progress)
     try:
-        for batch in _run_pool(setup, plan(setup.exp, todo), out_dir, workers, run_fn):
+        for batch in _runs(backend, setup, plan(setup.exp, todo), out_dir, workers, run_fn, address):
             for result in batch:
                 results.append(result)
                 if result.status == "ok":
@@ -175,6 +185,19 @@ def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool
     finally:
         bar.close()
     return [done[t.key] for t in trials if t.key in done]
+
+
+def _runs(backend: Backend, setup: ExperimentSetup, runs: list[TrainingRun], out_dir: Path, workers: int,
+          run_fn: RunFn, address: str | None) -> Iterable[list[TrialResult]]:
+    if backend == "ray":
+        from companion.experiment.ray_backend import run_on_ray
+
+        return run_on_ray(setup, runs, out_dir, workers, run_fn, address)
+    if backend != "process":
+        raise ConfigError(f"unknown backend {backend!r}; use 'process' or 'ray'")
+    if address is not None:
+        raise ConfigError("--address is for --backend ray")
+    return _run_pool(setup, runs, out_dir, workers, run_fn)
 
 
 def _run_pool(setup: ExperimentSetup, runs: list[TrainingRun], out_dir: Path, workers: int,
