@@ -145,9 +145,11 @@ def run_training_safely(setup: ExperimentSetup, run: TrainingRun, out_dir: Path,
 def _init_worker() -> None:
     """One torch thread per worker: the workers share the machine's cores."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import cv2
     import torch
 
     torch.set_num_threads(1)
+    cv2.setNumThreads(1)  # OpenCV's own pool spins on the other core for a gain lockstep cannot use
 
 
 Backend = Literal["process", "ray"]

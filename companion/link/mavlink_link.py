@@ -38,6 +38,10 @@ BODY_VELOCITY_TYPE_MASK = 0x5C7  # use vx, vy, vz, yaw rate; ignore position, ac
 POSITION_TYPE_MASK = 0x9F8  # use x, y, z, yaw; ignore velocity, acceleration, yaw rate
 UINT32_MAX = 2**32 - 1
 NAN = float("nan")  # MAVLink's "not set / use current" in command parameters
+# streams a PX4-like vehicle sends by default that no part of the companion reads (HEARTBEAT,
+# ATTITUDE, LOCAL_POSITION_NED, EXTENDED_SYS_STATE and SYSTEM_TIME are what it folds)
+UNREAD_STREAMS = ("ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "VFR_HUD", "SYS_STATUS",
+                  "BATTERY_STATUS", "HOME_POSITION")
 
 
 def result_name(result: int) -> str:
@@ -238,7 +242,10 @@ class MavlinkLink(VehicleLink):
         """What the companion needs: fast attitude and position, slower landed state."""
         fast, slow = self.cfg.telemetry_rate_hz, self.cfg.status_rate_hz
         rates = {"ATTITUDE": fast, "LOCAL_POSITION_NED": fast, "EXTENDED_SYS_STATE": slow}
-        return {name: hz for name, hz in rates.items() if hz > 0}
+        rates = {name: hz for name, hz in rates.items() if hz > 0}
+        if self.cfg.stop_unread_streams:  # 0 Hz: SET_MESSAGE_INTERVAL -1, the stream stops
+            rates.update(dict.fromkeys(UNREAD_STREAMS, 0.0))
+        return rates
 
     def _command(
         self, command: int, params: Sequence[float], name: str, hint: str = "",

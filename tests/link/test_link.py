@@ -139,6 +139,14 @@ def test_requests_the_telemetry_rates_it_needs(fake, make_link) -> None:
     }
 
 
+def test_unread_streams_are_stopped_only_when_asked(fake, make_link) -> None:
+    make_link(stop_unread_streams=True)
+    intervals = fake.requested_intervals_us()
+    assert intervals[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == -1  # -1: stop the stream
+    assert intervals[mavlink.MAVLINK_MSG_ID_SYS_STATUS] == -1
+    assert intervals[mavlink.MAVLINK_MSG_ID_ATTITUDE] > 0  # what the companion reads stays
+
+
 def test_rate_requests_report_refusals_instead_of_raising(fake, make_link) -> None:
     link = make_link()
     fake.set_ack_commands(False)
