@@ -74,14 +74,14 @@ def run_training(setup: ExperimentSetup, run: TrainingRun, out_dir: Path) -> lis
     for folder in {run_dir, *(out_dir / "trials" / t.key for t in run.trials)}:
         shutil.rmtree(folder, ignore_errors=True)  # a crashed attempt's dataset must not carry over
     run_dir.mkdir(parents=True)
-    train = _train(setup, cfg, run, run_dir)
+    train = train_run(setup, cfg, run, run_dir)
     results = []
     for trial in run.trials:
         checkpoint = run_dir / "checkpoints" / f"episode_{trial.interactions - 1:03d}.npz"
         trial_dir = out_dir / "trials" / trial.key
         trial_dir.mkdir(parents=True, exist_ok=True)
         t0 = time.monotonic()
-        evaluation = _evaluate(setup, cfg, checkpoint, trial_dir)
+        evaluation = evaluate_checkpoint(setup, cfg, checkpoint, trial_dir)
         results.append(_result(setup, trial, train.records[:trial.interactions], evaluation,
                                eval_wall_s=time.monotonic() - t0,
                                checkpoint=str(checkpoint.relative_to(out_dir))))
@@ -105,7 +105,7 @@ def _result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord]
     )
 
 
-def _train(setup: ExperimentSetup, cfg: CompanionConfig, run: TrainingRun, run_dir: Path) -> RunResult:
+def train_run(setup: ExperimentSetup, cfg: CompanionConfig, run: TrainingRun, run_dir: Path) -> RunResult:
     """The participant flies the condition's schedule from a fresh random policy."""
     from companion.app import RunOptions, run_episodes
 
@@ -118,7 +118,7 @@ def _train(setup: ExperimentSetup, cfg: CompanionConfig, run: TrainingRun, run_d
     return train
 
 
-def _evaluate(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
+def evaluate_checkpoint(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
     """The final policy alone on the held-out starts; only the episode records are kept."""
     from companion.app import RunOptions, run_episodes
 
