@@ -149,18 +149,28 @@ class CameraRenderer:
     def vfov_rad(self) -> float:
         return 2.0 * float(np.arctan((self.height_px / 2.0) / self.fy))
 
-    def world_to_image(self, position_ned_m: ArrayLike, attitude_rad: ArrayLike) -> np.ndarray:
-        """3x4 matrix P with ``[u*w, v*w, w] = P @ [n, e, d, 1]`` (w = depth along the axis)."""
-        r_bn = rotation_ned_from_body(attitude_rad).T
+    def world_to_image(
+        self, position_ned_m: ArrayLike, attitude_rad: ArrayLike, mount_rad: ArrayLike | None = None
+    ) -> np.ndarray:
+        """3x4 matrix P with ``[u*w, v*w, w] = P @ [n, e, d, 1]`` (w = depth along the axis).
+
+        ``mount_rad``: the camera's misalignment on the body, roll/pitch/yaw (ZYX) of the
+        camera's mounting axes in body axes; None (or omitted) is the nominal mounting.
+        """
+        r_nb = rotation_ned_from_body(attitude_rad)
+        if mount_rad is not None:
+            r_nb = r_nb @ rotation_ned_from_body(mount_rad)
+        r_bn = r_nb.T
         m = self.K @ CAM_FROM_BODY @ r_bn
         pos = np.asarray(position_ned_m, dtype=float)
         return np.hstack([m, (-m @ pos)[:, None]])
 
     def project(
-        self, point_ned_m: ArrayLike, position_ned_m: ArrayLike, attitude_rad: ArrayLike
+        self, point_ned_m: ArrayLike, position_ned_m: ArrayLike, attitude_rad: ArrayLike,
+        mount_rad: ArrayLike | None = None,
     ) -> tuple[float, float] | None:
         """Ground-truth pixel ``(u, v)`` of a world point; None if it is behind the camera."""
-        p = self.world_to_image(position_ned_m, attitude_rad) @ np.append(np.asarray(point_ned_m, float), 1.0)
+        p = self.world_to_image(position_ned_m, attitude_rad, mount_rad) @ np.append(np.asarray(point_ned_m, float), 1.0)
         if p[2] <= _MIN_DEPTH_M:
             return None
         return float(p[0] / p[2]), float(p[1] / p[2])
@@ -173,13 +183,16 @@ class CameraRenderer:
         safe = np.where(np.abs(depth) < 1e-9, 1e-9, depth)
         return np.column_stack([p[:, 0] / safe, p[:, 1] / safe, depth])
 
-    def render(self, position_ned_m: ArrayLike, attitude_rad: ArrayLike, t_s: float) -> np.ndarray:
-        """The camera image at pose (NED position, roll/pitch/yaw) and world time ``t_s``."""
+    def render(
+        self, position_ned_m: ArrayLike, attitude_rad: ArrayLike, t_s: float, mount_rad: ArrayLike | None = None
+    ) -> np.ndarray:
+        """The camera image at pose (NED position, roll/pitch/yaw) and world time ``t_s``, with
+        the camera misaligned by ``mount_rad`` (see :meth:`world_to_image`)."""
         pos = np.array(position_ned_m, dtype=float)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(np.asarray(attitude_rad, dtype=float)))):
             raise ValueError(f"camera pose must be finite, got position {pos} attitude {np.asarray(attitude_rad)}")
         pos[2] = min(pos[2], -_MIN_HEIGHT_M)  # on (or numerically under) the ground: look from just above it
-        proj = self.world_to_image(pos, attitude_rad)
+        proj = self.world_to_image(pos, attitude_rad, mount_rad)
         image = self._draw_ground(proj, pos)
         self._draw_sky(image, proj)
         self._draw_vehicle(image, proj, pos, t_s)

@@ -5,6 +5,7 @@ Defaults are the paper's setting; ``configs/default.toml`` mirrors them (a test 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -120,12 +121,48 @@ class CameraConfig(Section):
     )
 
 
+class DisturbanceConfig(Section):
+    """Real-flight disturbances (sitl/disturbance.py, docs/sitl.md "Disturbances").
+
+    Every component is ``level`` times its maximum below (the value at level 1); level 0 is the
+    undisturbed vehicle, bit for bit. Random parts are drawn per episode from the episode's seed.
+    """
+
+    level: float = Field(0.0, ge=0, le=1, description="0 = none; each component is level x its maximum")
+    wind_speed_max_m_s: float = Field(
+        10.0, ge=0, le=30, description="steady wind at level 1, direction random per episode"
+    )
+    turbulence_w20_max_m_s: float = Field(
+        10.0, ge=0, le=30, description="MIL-F-8785C wind speed at 20 ft (light 7.7, moderate 15.4), JSBSim Milspec"
+    )
+    heading_range_max_rad: float = Field(
+        math.pi, ge=0, le=math.pi, description="initial yaw uniform in +-range"
+    )
+    vehicle_speed_max_m_s: float = Field(
+        0.5, ge=0, le=10, description="ground vehicle's speed, direction random per episode, added to vehicle_velocity_ne_m_s"
+    )
+    image_noise_max_std: float = Field(
+        10.0, ge=0, le=64, description="Gaussian pixel noise, std in 8-bit levels, fresh every frame"
+    )
+    camera_misalignment_max_rad: float = Field(
+        0.05, ge=0, le=0.2, description="camera mount roll, pitch, yaw each uniform in +-max per episode"
+    )
+    attitude_noise_max_rad: float = Field(
+        0.02, ge=0, le=0.2, description="std of the noise on reported roll, pitch, yaw (ATTITUDE, ATTITUDE_QUATERNION)"
+    )
+    rate_noise_max_rad_s: float = Field(0.05, ge=0, le=1, description="std of the noise on reported body rates")
+    frame_latency_max_s: float = Field(
+        0.095, ge=0, le=1, description="camera shows the pose this long ago (rounded to FDM steps; 0.095 s = 1 frame)"
+    )
+
+
 class SitlConfig(Section):
     clock: ClockConfig = ClockConfig()
     network: NetworkConfig = NetworkConfig()
     autopilot: AutopilotConfig = AutopilotConfig()
     world: WorldConfig = WorldConfig()
     camera: CameraConfig = CameraConfig()
+    disturbance: DisturbanceConfig = DisturbanceConfig()
 
 
 def check_top_level(data: dict, source: str) -> None:

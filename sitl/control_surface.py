@@ -41,6 +41,7 @@ def truth(v: SimVehicle) -> dict[str, Any]:
         "vehicle_vel_ned": _vec(s.velocity_ned_m_s),
         "attitude_rad": _vec(s.attitude_rad),
         "pad_ned": _vec(v.world.pad_ned(v.time_s)),
+        "wind_ned": _vec(v.dynamics.wind_ned_m_s()),
         "landed": v.landed,
         "armed": v.armed,
         "mode": v.mode.px4_name,
@@ -58,6 +59,8 @@ def info(v: SimVehicle, camera_uri: str | None, clock: str) -> dict[str, Any]:
         "time_boot_ms": v.time_boot_ms,
         "world": w.model_dump(),
         "camera": v.cfg.camera.model_dump(),
+        "disturbance": v.cfg.disturbance.model_dump(),
+        "episode_disturbance": asdict(v.disturbance),
     }
 
 
@@ -79,6 +82,7 @@ def handle_request(v: SimVehicle, req: dict[str, Any], camera_uri: str | None, c
             "start_ned": _vec(start),
             "pad_ned": _vec(v.world.pad_ned(v.time_s)),
             "time_boot_ms": v.time_boot_ms,
+            "disturbance": asdict(v.disturbance),
         }
     if cmd == "set_ground_vehicle":
         vel = req.get("velocity_ne_m_s")

@@ -59,6 +59,17 @@ SURFACE_TOLERANCE_M = 0.05  # a surface counts as "below" while the feet are abo
 SURFACE_MARGIN_M = 1.0  # above max_surface_height_m plus this, surfaces are not looked up
 MIN_AIRBORNE_S = 0.5  # a contact after less flight than this is a bounce, not a touchdown
 
+# Atmosphere (only with an Atmosphere set; see docs/sitl.md "Disturbances").
+TURBULENCE_GROUND_ASL_M = 0.0  # JSBSim picks its turbulence model by height above sea level:
+# near the ground of a 488 m home it would use its 1000-2000 ft blend (drifts over ~100 s); with
+# JSBSim's ground at sea level it uses the low-altitude (< 1000 ft) model of a vehicle near it
+TURBULENCE_SEVERITY = 3  # below 1000 ft it only switches the Milspec model on
+TURBULENCE_PREROLL_S = 15.0  # the filters start at rest; run them this long (vehicle held) first
+_MILSPEC = 3  # atmosphere/turb-type: MIL-F-8785C (Tustin, 4, can turn NaN after run_ic)
+_PSF_PA = 47.880258889
+_RANKINE_K = 1.8
+_EARTH_RADIUS_M = 6356766.0  # JSBSim's, for the geopotential height of the standard atmosphere
+
 
 def ned_to_geodetic(north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
     """Latitude, longitude (deg) and altitude above mean sea level (m) of a local NED point."""
@@ -72,6 +83,23 @@ def geodetic_to_ned(lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float
     north = math.radians(lat_deg - HOME_LAT_DEG) * _NORTH_M_PER_RAD
     east = math.radians(lon_deg - HOME_LON_DEG) * _EAST_M_PER_RAD
     return north, east, HOME_ALT_M - alt_m
+
+
+def standard_atmosphere(height_asl_m: float) -> tuple[float, float]:
+    """Pressure (Pa) and temperature (K) of the 1976 standard atmosphere below 11 km."""
+    geopotential_m = _EARTH_RADIUS_M * height_asl_m / (_EARTH_RADIUS_M + height_asl_m)
+    temperature_k = 288.15 - 0.0065 * geopotential_m
+    return 101325.0 * (temperature_k / 288.15) ** 5.2558770, temperature_k
+
+
+@dataclass(frozen=True)
+class Atmosphere:
+    """Steady wind (the air's NE velocity, m/s) and MIL-F-8785C turbulence (W20, m/s; 0 = none)
+    with JSBSim's generator seed (1 .. 2^31 - 2; the same seed gives the same gusts)."""
+
+    wind_ne_m_s: tuple[float, float] = (0.0, 0.0)
+    turbulence_w20_m_s: float = 0.0
+    seed: int = 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +145,11 @@ class Dynamics:
 
     :attr:`last_contact` is the latest touchdown after at least ``MIN_AIRBORNE_S`` of flight
     (bounces do not replace it); ``reset`` clears it.
+
+    ``ground_asl_m`` is where JSBSim puts the local ground (the reported home stays at
+    ``HOME_ALT_M``); away from it the air is made as dense and warm as at ``HOME_ALT_M``, so
+    only the turbulence model sees the difference. :meth:`set_atmosphere` adds wind and
+    turbulence from the next :meth:`reset` on.
     """
 
     def __init__(
@@ -124,6 +157,7 @@ class Dynamics:
         fdm_rate_hz: float = 126.0,
         surface_height_m: Callable[[float, float, float], float] | None = None,
         max_surface_height_m: float = math.inf,
+        ground_asl_m: float = HOME_ALT_M,
     ) -> None:
         if not (math.isfinite(fdm_rate_hz) and 60.0 <= fdm_rate_hz <= 1000.0):
             raise ConfigError(f"fdm_rate_hz={fdm_rate_hz!r}: use a rate between 60 and 1000 Hz")
@@ -135,7 +169,11 @@ class Dynamics:
         self._lookup_below_down_m = -(max_surface_height_m + SURFACE_MARGIN_M)
         self._min_airborne_steps = math.ceil(MIN_AIRBORNE_S * fdm_rate_hz)
         self._airborne_steps = 0
+        self._ground_asl_m = float(ground_asl_m)
+        self._atmosphere: Atmosphere | None = None
         self._fdm = _load_f450(self.dt_s)
+        if self._ground_asl_m != HOME_ALT_M:
+            self._air_as_at_home()
         self._bind_properties()
         self._time_base_s = 0.0
         self._steps = 0
@@ -167,6 +205,14 @@ class Dynamics:
         ).split()
         self._getters = tuple(node(n).get_double_value for n in names)
 
+    def _air_as_at_home(self) -> None:
+        """Sea-level pressure and a temperature offset that give the ground the air of HOME_ALT_M."""
+        p_home, t_home = standard_atmosphere(HOME_ALT_M)
+        p_ground, t_ground = standard_atmosphere(self._ground_asl_m)
+        p_sl, _ = standard_atmosphere(0.0)
+        self._fdm["atmosphere/P-sl-psf"] = p_sl * p_home / p_ground / _PSF_PA
+        self._fdm["atmosphere/delta-T"] = (t_home - t_ground) * _RANKINE_K
+
     @property
     def state(self) -> VehicleState:
         return self._state
@@ -174,6 +220,21 @@ class Dynamics:
     @property
     def time_s(self) -> float:
         return self._time_base_s + self._steps * self.dt_s
+
+    @property
+    def steps(self) -> int:
+        """FDM steps since the last reset."""
+        return self._steps
+
+    def set_atmosphere(self, atmosphere: Atmosphere | None) -> None:
+        """Wind and turbulence from the next :meth:`reset` on (None: calm, the default)."""
+        self._atmosphere = atmosphere
+
+    def wind_ned_m_s(self) -> tuple[float, float, float]:
+        """The air's velocity at the vehicle now: steady wind plus turbulence."""
+        return tuple(  # type: ignore[return-value]
+            self._fdm[f"atmosphere/total-wind-{axis}-fps"] * FT_M for axis in ("north", "east", "down")
+        )
 
     def reset(
         self,
@@ -206,9 +267,14 @@ class Dynamics:
         self._apply_initial_conditions()
         for set_throttle in self._set_throttle:
             set_throttle(throttle)
-        for _ in range(SPIN_UP_STEPS):  # propellers keep their speed across run_ic
-            self._fdm.run()
-        self._apply_initial_conditions()
+        if self._atmosphere is None:
+            for _ in range(SPIN_UP_STEPS):  # propellers keep their speed across run_ic
+                self._fdm.run()
+            self._apply_initial_conditions()
+        else:
+            self._preroll_atmosphere(self._atmosphere)
+            self._apply_initial_conditions()
+            self._set_wind(self._atmosphere)  # run_ic zeroes the steady wind
         self.last_contact = None
         self._airborne_steps = 0 if on_surface else self._min_airborne_steps
         self._state = self._read_state()
@@ -220,8 +286,8 @@ class Dynamics:
         fdm = self._fdm
         fdm["ic/lat-geod-deg"] = lat
         fdm["ic/long-gc-deg"] = lon
-        fdm["ic/terrain-elevation-ft"] = (HOME_ALT_M + self._terrain_m) / FT_M
-        fdm["ic/h-sl-ft"] = (HOME_ALT_M - down + GEAR_DEPTH_M) / FT_M
+        fdm["ic/terrain-elevation-ft"] = (self._ground_asl_m + self._terrain_m) / FT_M
+        fdm["ic/h-sl-ft"] = (self._ground_asl_m - down + GEAR_DEPTH_M) / FT_M
         fdm["ic/psi-true-rad"] = yaw % (2 * math.pi)
         fdm["ic/phi-rad"] = 0.0
         fdm["ic/theta-rad"] = 0.0
@@ -230,6 +296,32 @@ class Dynamics:
         for name in ("p", "q", "r"):
             fdm[f"ic/{name}-rad_sec"] = 0.0
         fdm.run_ic()
+
+    def _preroll_atmosphere(self, atm: Atmosphere) -> None:
+        """Seed and switch on the turbulence, then run the model with the vehicle held in place
+        (it spins up its propellers meanwhile) until the gusts have their full strength; the
+        filters' states survive the run_ic that follows."""
+        fdm = self._fdm
+        fdm["atmosphere/randomseed"] = atm.seed
+        fdm["atmosphere/turb-type"] = _MILSPEC
+        fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = atm.turbulence_w20_m_s / FT_M
+        fdm["atmosphere/turbulence/milspec/severity"] = TURBULENCE_SEVERITY if atm.turbulence_w20_m_s > 0 else 0
+        self._set_wind(atm)
+        steps = SPIN_UP_STEPS
+        if atm.turbulence_w20_m_s > 0:
+            steps = max(steps, math.ceil(TURBULENCE_PREROLL_S / self.dt_s))
+        fdm["forces/hold-down"] = 1
+        for _ in range(steps):
+            fdm.run()
+        fdm["forces/hold-down"] = 0
+
+    def _set_wind(self, atm: Atmosphere) -> None:
+        north, east = atm.wind_ne_m_s
+        if north == 0.0 and east != 0.0:
+            north = 1e-6  # JSBSim keeps the wind's direction at 0 while its north part is 0
+        self._fdm["atmosphere/wind-north-fps"] = north / FT_M
+        self._fdm["atmosphere/wind-east-fps"] = east / FT_M
+        self._fdm["atmosphere/wind-down-fps"] = 0.0
 
     def step(self, esc: tuple[float, float, float, float]) -> VehicleState:
         """Advance one FDM step with ESC commands (MOTOR_ORDER), each clipped to [0, 1].
@@ -265,7 +357,7 @@ class Dynamics:
         """Move JSBSim's terrain to the surface below, unless that is above the feet."""
         if surface_m != self._terrain_m and surface_m <= SURFACE_TOLERANCE_M - down_m:
             self._terrain_m = surface_m
-            self._set_terrain_ft((HOME_ALT_M + surface_m) / FT_M)
+            self._set_terrain_ft((self._ground_asl_m + surface_m) / FT_M)
 
     def _read_state(self) -> VehicleState:
         (lat, lon, h, vn, ve, vd, phi, theta, psi, p, q, r, ax, ay, az, wow, fz) = [
@@ -276,7 +368,7 @@ class Dynamics:
             (
                 (lat - _HOME_LAT_RAD) * _NORTH_M_PER_RAD,
                 (lon - _HOME_LON_RAD) * _EAST_M_PER_RAD,
-                HOME_ALT_M + GEAR_DEPTH_M - h,
+                self._ground_asl_m + GEAR_DEPTH_M - h,
             ),
             (vn * FT_M, ve * FT_M, vd * FT_M),
             (phi, theta, psi - 2 * math.pi if psi > math.pi else psi),

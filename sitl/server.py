@@ -20,6 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -28,6 +29,11 @@ from sitl.control_surface import RequestError, handle_request, parse_request
 from sitl.handler import CameraInfo, MessageHandler
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
 from sitl.vehicle import AUTOPILOT, CAMERA, Outgoing, SimVehicle
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from sitl.camera import CameraRenderer
 
 log = logging.getLogger("sitl.server")
 M = mavlink
@@ -205,6 +211,12 @@ class SitlServer:
         self.clients: list[MavClient] = []
         self.stats = ClockStats()
         self._stop = threading.Event()
+        # stop() (a SIGTERM handler) must end a select() that waits for a lockstep answer:
+        # Python retries an interrupted select() for its whole timeout (PEP 475), which with
+        # lockstep_timeout_s = 10 outlived start_sitl's 5 s grace and got the SITL killed.
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
         self._answered = False
         self._frame_ms = -1
         self._control_queue: deque[tuple[ControlClient, bytes]] = deque()
@@ -219,6 +231,7 @@ class SitlServer:
             self.sel.register(self.tcp_listener, selectors.EVENT_READ, self._accept_tcp)
         self.control_listener = _listener(net.host, net.control_port)
         self.sel.register(self.control_listener, selectors.EVENT_READ, self._accept_control)
+        self.sel.register(self._wake_r, selectors.EVENT_READ, self._drain_wake)
         self.camera = self._open_camera() if cfg.camera.enabled else None
         cam_info = None
         if self.camera is not None:
@@ -244,6 +257,16 @@ class SitlServer:
     # ----- running ---------------------------------------------------------------------------
     def stop(self) -> None:
         self._stop.set()
+        try:
+            self._wake_w.send(b"\0")
+        except OSError:
+            pass  # already closed, or a wake-up is already pending
+
+    def _drain_wake(self) -> None:
+        try:
+            self._wake_r.recv(64)
+        except OSError:
+            pass
 
     def serve(self, max_sim_s: float | None = None, on_frame: Callable[[], None] | None = None) -> None:
         """Run frames until stop() (or ``max_sim_s`` of simulation time), then close everything."""
@@ -329,8 +352,19 @@ class SitlServer:
                 hb = M.MAVLink_heartbeat_message(M.MAV_TYPE_CAMERA, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
                 self._broadcast(Outgoing(CAMERA, hb))
         self._flush_events()
+        self._greet_silent_udp_peers()
         self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_SYSTEM_TIME](v)))
         self._flush_all()
+
+    def _greet_silent_udp_peers(self) -> None:
+        """A HEARTBEAT every frame to UDP remotes that have not talked yet: a companion that
+        binds its port just after the SITL started (start_sitl, then udpin) missed the first
+        1 Hz HEARTBEAT and waited up to 1 s to connect. Stops once the peer talks."""
+        silent = [c for c in self.clients if isinstance(c, UdpClient) and not c.active]
+        if silent:
+            data = self._pack(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_HEARTBEAT](self.vehicle)))
+            for c in silent:
+                c.send(data)
 
     def _flush_all(self) -> None:
         for c in self.clients:
@@ -511,12 +545,21 @@ class SitlServer:
                 c.close()
             except OSError:
                 pass
-        for s in (self.tcp_listener, self.control_listener):
+        for s in (self.tcp_listener, self.control_listener, self._wake_r, self._wake_w):
             if s is not None:
                 s.close()
         if self.camera is not None:
             self.camera.close()
         self.sel.close()
+
+
+def render_frame(renderer: CameraRenderer, v: SimVehicle) -> np.ndarray:
+    """The camera's image now: the true pose (``frame_latency`` ago) through the camera as
+    mounted, with the episode's pixel noise; stamped by the caller with the current time."""
+    s = v.camera_state
+    d = v.disturbance
+    image = renderer.render(s.position_ned_m, s.attitude_rad, s.time_s, d.camera_mount)
+    return d.add_image_noise(image, v.dynamics.steps)
 
 
 class _CameraFeed:
@@ -546,8 +589,7 @@ class _CameraFeed:
 
         if self.server.client_count == 0:
             return
-        s = self.vehicle.state
-        image = self.renderer.render(s.position_ned_m, s.attitude_rad, s.time_s)
+        image = render_frame(self.renderer, self.vehicle)
         self.server.publish(Frame(self.frame_number, self.vehicle.time_boot_ms, image), blocking=blocking)
         self.frame_number += 1
 

@@ -93,15 +93,14 @@ def extended_sys_state(v: SimVehicle) -> mavlink.MAVLink_message:
 
 
 def attitude(v: SimVehicle) -> mavlink.MAVLink_message:
-    s = v.state
-    r, p, y = s.attitude_rad
-    return M.MAVLink_attitude_message(v.time_boot_ms, r, p, y, *s.rates_frd_rad_s)
+    (r, p, y), rates = v.reported_attitude()
+    return M.MAVLink_attitude_message(v.time_boot_ms, r, p, y, *rates)
 
 
 def attitude_quaternion(v: SimVehicle) -> mavlink.MAVLink_message:
-    s = v.state
-    q = euler_to_quaternion(*s.attitude_rad)
-    return M.MAVLink_attitude_quaternion_message(v.time_boot_ms, *q, *s.rates_frd_rad_s, [0, 0, 0, 0])
+    att, rates = v.reported_attitude()
+    q = euler_to_quaternion(*att)
+    return M.MAVLink_attitude_quaternion_message(v.time_boot_ms, *q, *rates, [0, 0, 0, 0])
 
 
 def local_position_ned(v: SimVehicle) -> mavlink.MAVLink_message:

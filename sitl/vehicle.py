@@ -16,7 +16,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.config import SitlConfig
 from sitl.control import FlightController, Setpoint
-from sitl.dynamics import Dynamics, VehicleState
+from sitl.disturbance import EpisodeDisturbance
+from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Dynamics, VehicleState
 from sitl.modes import Mode, refusal
 from sitl.offboard import SetpointRejected, TargetFields, to_setpoint
 from sitl.params import BINDING_BY_NAME, ParamStore, apply_to_config, autopilot_params
@@ -50,6 +51,9 @@ class SimVehicle:
     def __init__(self, cfg: SitlConfig) -> None:
         self.cfg = cfg
         self.world = World(cfg.world)
+        # boot counts as episode 0 of the run's sequence: disturbed like any episode
+        self.disturbance = EpisodeDisturbance.draw(cfg.disturbance, (cfg.world.seed, 0))
+        self.world.restart(0.0, self.disturbance.vehicle_velocity_ne_m_s)
         self.dynamics = self._new_dynamics()
         self.controller = FlightController(cfg.autopilot, self.dynamics.dt_s)
         self.params = ParamStore(autopilot_params(cfg.autopilot))
@@ -59,13 +63,27 @@ class SimVehicle:
         self.episode = 0
         spawn = (cfg.world.spawn_ne_m[0], cfg.world.spawn_ne_m[1], 0.0)
         self.home_ned_m = spawn
-        self.dynamics.reset(spawn, yaw_rad=0.0)
+        self.dynamics.reset(spawn, yaw_rad=self.disturbance.yaw_rad)
+        self._start_disturbance()
         self._enter_landed_disarmed()
 
     def _new_dynamics(self) -> Dynamics:
         """A fresh JSBSim instance: its reset keeps internal state (a 0.2 mm drift after one
-        episode), and a new one costs only a few milliseconds."""
-        return Dynamics(self.cfg.clock.fdm_rate_hz, self.world.surface_height_m, max_surface_height_m=self.world.roof_height_m)
+        episode), and a new one costs only a few milliseconds. It carries the episode's wind
+        and turbulence (with turbulence JSBSim's ground sits at sea level: docs/sitl.md)."""
+        d = self.disturbance
+        ground_asl = TURBULENCE_GROUND_ASL_M if d.turbulence_w20_m_s > 0 else HOME_ALT_M
+        dyn = Dynamics(self.cfg.clock.fdm_rate_hz, self.world.surface_height_m,
+                       max_surface_height_m=self.world.roof_height_m, ground_asl_m=ground_asl)
+        dyn.set_atmosphere(d.atmosphere())
+        return dyn
+
+    def _start_disturbance(self) -> None:
+        """Per-episode state of the disturbance: the camera's pose history (its latency)."""
+        k = self.disturbance.latency_steps(self.cfg.clock.fdm_rate_hz)
+        self._camera_history: deque[VehicleState] | None = deque([self.state], maxlen=k + 1) if k > 0 else None
+        self._attitude_noise_step = -1
+        self._attitude_noise = np.zeros(6)
 
     # ----- state -------------------------------------------------------------------------
     def _enter_landed_disarmed(self) -> None:
@@ -86,6 +104,29 @@ class SimVehicle:
     @property
     def state(self) -> VehicleState:
         return self.dynamics.state
+
+    @property
+    def camera_state(self) -> VehicleState:
+        """The pose the camera shows now: the state ``frame_latency`` ago (the episode's start
+        state until that much of the episode has passed)."""
+        history = self._camera_history
+        return self.state if history is None else history[0]
+
+    def reported_attitude(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Roll, pitch, yaw and body rates as the autopilot reports them (with the episode's
+        noise, a function of the FDM step; yaw stays in (-pi, pi])."""
+        s = self.state
+        d = self.disturbance
+        if not d.noisy_attitude:
+            return s.attitude_rad, s.rates_frd_rad_s
+        step = self.dynamics.steps
+        if step != self._attitude_noise_step:
+            self._attitude_noise_step, self._attitude_noise = step, d.attitude_noise(step)
+        n = self._attitude_noise
+        roll, pitch, yaw = (a + float(x) for a, x in zip(s.attitude_rad, n[:3]))
+        yaw = math.pi - (math.pi - yaw) % (2 * math.pi)
+        p, q, r = (w + float(x) for w, x in zip(s.rates_frd_rad_s, n[3:]))
+        return (roll, pitch, yaw), (p, q, r)
 
     @property
     def time_s(self) -> float:
@@ -132,6 +173,8 @@ class SimVehicle:
         esc = self.controller.update(state, self._sp, self.armed)
         new = self.dynamics.step(esc)
         self._ground_contact(new)
+        if self._camera_history is not None:
+            self._camera_history.append(new)
         return new
 
     def _progress_mode(self, state: VehicleState) -> None:
@@ -305,14 +348,19 @@ class SimVehicle:
         """Place the vehicle at a random start above the pad, hovering, armed, in hold."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
+        # the disturbance has its own stream: the starts are those of an undisturbed run
+        self.disturbance = EpisodeDisturbance.draw(
+            self.cfg.disturbance, seed if seed is not None else (self.cfg.world.seed, self.episode + 1)
+        )
         # Episodes start on a whole second of simulation time: the frames' time_boot_ms (whole
         # milliseconds of a 95.238 ms period) then round alike in every episode, so whatever
         # uses them (a pilot's timers) does not depend on when the episode began.
         t = float(math.ceil(self.time_s))
-        self.world.restart(t)
+        self.world.restart(t, self.disturbance.vehicle_velocity_ne_m_s)
         start = self.world.episode_start(self.rng, t)
         self.dynamics = self._new_dynamics()
-        self.dynamics.reset(tuple(start), yaw_rad=0.0, time_s=t)
+        self.dynamics.reset(tuple(start), yaw_rad=self.disturbance.yaw_rad, time_s=t)
+        self._start_disturbance()
         self._enter_landed_disarmed()
         self._landed_since_s = None
         self._airborne = True

@@ -27,24 +27,39 @@ class Touchdown:
 
 
 class World:
-    """Ground vehicle and pad kinematics; constant velocity from ``t0_s`` (the last reset)."""
+    """Ground vehicle and pad kinematics; constant velocity from ``t0_s`` (the last reset).
+
+    The velocity is the set one (``vehicle_velocity_ne_m_s`` or :meth:`set_velocity`) plus an
+    episode's drift (:meth:`restart`, the disturbance's random drive; zero by default).
+    """
 
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg
-        self.velocity_ne = np.asarray(cfg.vehicle_velocity_ne_m_s, dtype=float)
+        self.set_velocity_ne = np.asarray(cfg.vehicle_velocity_ne_m_s, dtype=float)
+        self.drift_ne = np.zeros(2)
+        self.velocity_ne = self.set_velocity_ne
         self.origin_ne = np.zeros(2)
         self.t0_s = 0.0
 
-    def restart(self, t_s: float) -> None:
-        """Put the ground vehicle back at the origin at time ``t_s``."""
+    def restart(self, t_s: float, drift_ne_m_s: tuple[float, float] = (0.0, 0.0)) -> None:
+        """Put the ground vehicle back at the origin at time ``t_s``, driving at its set
+        velocity plus ``drift_ne_m_s`` from then on."""
         self.origin_ne = np.zeros(2)
         self.t0_s = t_s
+        self.drift_ne = np.asarray(drift_ne_m_s, dtype=float)
+        self._update_velocity()
 
     def set_velocity(self, velocity_ne_m_s: tuple[float, float], t_s: float) -> None:
-        """Change the ground vehicle's velocity from now on, keeping its position continuous."""
+        """Change the ground vehicle's set velocity from now on (the episode's drift stays added),
+        keeping its position continuous."""
         self.origin_ne = self.position_ne(t_s)
         self.t0_s = t_s
-        self.velocity_ne = np.asarray(velocity_ne_m_s, dtype=float)
+        self.set_velocity_ne = np.asarray(velocity_ne_m_s, dtype=float)
+        self._update_velocity()
+
+    def _update_velocity(self) -> None:
+        drifting = bool(np.any(self.drift_ne != 0.0))
+        self.velocity_ne = self.set_velocity_ne + self.drift_ne if drifting else self.set_velocity_ne
 
     def position_ne(self, t_s: float) -> np.ndarray:
         return self.origin_ne + self.velocity_ne * (t_s - self.t0_s)

@@ -87,3 +87,32 @@ def test_the_sitl_output_is_drained_after_ready() -> None:
     while not any('"frames"' in line for line in sitl.tail) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert any('"frames"' in line for line in sitl.tail)  # the exit summary reached the tail
+
+
+def test_a_lockstep_sitl_waiting_for_an_answer_stops_at_once(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """SIGTERM while the SITL waits (10 s) for a lockstep answer: it exits cleanly at once.
+    Python retries an interrupted select() for its whole timeout; without a wake-up the
+    SITL outlived stop()'s grace and was killed, 5 s per experiment run."""
+    from companion.simulator import start_sitl
+    from tests.mav_client import MavTestClient
+
+    config = tmp_path / "slow_lockstep.toml"
+    config.write_text("[sitl.clock]\nlockstep_timeout_s = 10.0\n")
+    client = MavTestClient()
+    sitl = start_sitl(client.port, clock="lockstep", config=config, camera=False)
+    try:
+        last = client.wait_for(lambda m: m.get_type() == "SYSTEM_TIME", timeout_s=10.0)
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:  # answer the newest frame: lockstep attaches
+            client.body_velocity(0.0, echo_ms=last.time_boot_ms)
+            markers = [m for m in client.pump(0.15) if m.get_type() == "SYSTEM_TIME"]
+            last = markers[-1] if markers else last
+        time.sleep(0.5)  # then silence: the SITL waits for an answer to its newest frame
+        assert not [m for m in client.pump(0.3) if m.get_type() == "SYSTEM_TIME"]
+        started = time.monotonic()
+        sitl.stop()
+        assert time.monotonic() - started < 2.0
+        assert sitl.proc.returncode == 0  # it exited by itself, not killed
+    finally:
+        sitl.stop()
+        client.close()
