@@ -13,11 +13,10 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing
-import os
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -36,15 +35,13 @@ from companion.experiment.grid import (
     plan,
 )
 from companion.experiment.results import ResultsFile, TrialResult
+from companion.experiment.tasks import CONFIG_COPY, RunFn, init_worker, run_training_safely
 
 if TYPE_CHECKING:
     from companion.app import RunResult
     from companion.control.session import EpisodeRecord
 
 log = logging.getLogger(__name__)
-CONFIG_COPY = "config.toml"
-"""The experiment file, copied into the results folder so that its trials can be rerun."""
-RunFn = Callable[[ExperimentSetup, TrainingRun, Path], list[TrialResult]]
 
 
 def trial_config(setup: ExperimentSetup, trial: Trial | TrainingRun) -> CompanionConfig:
@@ -131,27 +128,6 @@ def evaluate_checkpoint(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint
     return evaluation
 
 
-def run_training_safely(setup: ExperimentSetup, run: TrainingRun, out_dir: Path,
-                        run_fn: RunFn = run_training) -> list[TrialResult]:
-    """A failed run gives ``error`` results for its trials (run again on resume), not a dead grid."""
-    try:
-        return run_fn(setup, run, out_dir)
-    except Exception as exc:  # any failure of one run is reported, the grid goes on
-        log.warning("training run %s failed: %r", run.key, exc)
-        return [TrialResult(trial=t, fingerprint=setup.fingerprint(), status="error", error=repr(exc))
-                for t in run.trials]
-
-
-def _init_worker() -> None:
-    """One torch thread per worker: the workers share the machine's cores."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import cv2
-    import torch
-
-    torch.set_num_threads(1)
-    cv2.setNumThreads(1)  # OpenCV's own pool spins on the other core for a gain lockstep cannot use
-
-
 Backend = Literal["process", "ray"]
 
 
@@ -208,7 +184,7 @@ def _run_pool(setup: ExperimentSetup, runs: list[TrainingRun], out_dir: Path, wo
     if not runs:
         return
     context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=init_worker)
     try:
         futures = [pool.submit(run_training_safely, setup, r, out_dir, run_fn) for r in runs]
         for future in as_completed(futures):

@@ -17,7 +17,8 @@ from pathlib import Path, PurePosixPath
 from companion.errors import ConfigError, DatasetCorrupt
 from companion.experiment.grid import TrainingRun, load_experiment
 from companion.experiment.results import TrialResult
-from companion.experiment.runner import CONFIG_COPY, run_training
+from companion.experiment.runner import run_training
+from companion.experiment.tasks import CONFIG_COPY
 
 
 @dataclass(frozen=True)
