@@ -37,9 +37,14 @@ import argparse
 import json
 import math
 import os
+import sys
 import time
+from pathlib import Path
 
 import jsbsim
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from sitl.dynamics import SilentLogger  # noqa: E402  (the SITL's own: JSBSim's chatter off)
 
 DT_S = 1.0 / 120.0
 RATE_HZ = 120.0
@@ -49,25 +54,6 @@ ALTITUDE_FT = 300.0
 HOVER_THROTTLE = 0.40826
 SPIN_UP_STEPS = 48
 HOLD_TOLERANCE_FT = 10.0
-
-
-class _SilentLogger(jsbsim.FGLogger):
-    """Swallows JSBSim's console chatter; failures still raise (load_model returns False)."""
-
-    def set_level(self, level: jsbsim.LogLevel) -> None:
-        pass
-
-    def file_location(self, filename: str, line: int) -> None:
-        pass
-
-    def message(self, message: str) -> None:
-        pass
-
-    def format(self, format: jsbsim.LogFormat) -> None:
-        pass
-
-    def flush(self) -> None:
-        pass
 
 
 def _hovering_f450() -> jsbsim.FGFDMExec:
@@ -100,7 +86,7 @@ def _timed_rounds(rounds: int, steps: int) -> list[tuple[float, float]]:
     if rounds < 1 or steps < 1:
         raise ValueError(f"rounds and steps must be >= 1; got rounds={rounds}, steps={steps}")
     previous = jsbsim.get_logger()
-    jsbsim.set_logger(_SilentLogger())
+    jsbsim.set_logger(SilentLogger())
     try:
         times = []
         for _ in range(rounds):

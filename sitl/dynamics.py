@@ -378,7 +378,7 @@ class Dynamics:
         )
 
 
-class _SilentLogger(jsbsim.FGLogger):
+class SilentLogger(jsbsim.FGLogger):
     """Swallows JSBSim's console chatter; real failures still raise exceptions."""
 
     def set_level(self, level: jsbsim.LogLevel) -> None:
@@ -443,7 +443,7 @@ def _gear_xml() -> str:
 
 def _load_f450(dt_s: float) -> jsbsim.FGFDMExec:
     """A quiet JSBSim executive holding the derived F450, with integrators stable on contact."""
-    jsbsim.set_logger(_SilentLogger())
+    jsbsim.set_logger(SilentLogger())
     root = Path(jsbsim.get_default_root_dir())
     shipped = root / "aircraft" / "F450"
     fdm = jsbsim.FGFDMExec(str(root))
