@@ -15,6 +15,7 @@ import math
 import socket
 import time
 from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -208,9 +209,45 @@ def open_run_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: Vehicl
         return None
 
 
+@dataclass(frozen=True)
+class Vehicle:
+    """What a run flies: the link, the SITL's control surface (None on a real vehicle) and the
+    camera (None: the pad counts as not visible)."""
+
+    link: VehicleLink
+    simulator: SimulatorClient | None
+    camera: CameraSource | None
+
+
+VehicleOpener = Callable[[CompanionConfig, RunOptions, bool, Path], AbstractContextManager[Vehicle]]
+"""(config, options, lockstep, run folder) -> a context holding the connected vehicle, closed on exit."""
+
+
+@contextlib.contextmanager
+def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir: Path) -> Iterator[Vehicle]:
+    """The vehicle over MAVLink: the one ``--connect`` names, or our own SITL started here."""
+    with contextlib.ExitStack() as stack:
+        connection, sitl = stack.enter_context(vehicle_connection(cfg, opts, lockstep))
+        link_cfg = cfg.link.model_copy(update={"connection": connection})
+        link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
+        stack.callback(link.close)
+        link.connect(timeout_s=30.0)
+        simulator = simulator_client(opts, sitl)
+        if simulator is not None:
+            stack.callback(simulator.close)
+        camera = open_run_camera(cfg, sitl, link)
+        if camera is not None:
+            stack.callback(camera.close)
+        yield Vehicle(link, simulator, camera)
+
+
 def run_episodes(cfg: CompanionConfig, opts: RunOptions,
-                 on_episode: Callable[[EpisodeRecord], None] | None = None) -> RunResult:
-    """Connect (or start the SITL), then fly ``episodes`` episodes of ``opts.condition``."""
+                 on_episode: Callable[[EpisodeRecord], None] | None = None,
+                 vehicle: VehicleOpener = open_vehicle) -> RunResult:
+    """Connect (or start the SITL), then fly ``episodes`` episodes of ``opts.condition``.
+
+    ``vehicle`` opens what the episodes fly (the experiment's evaluation passes an in-process SITL).
+    """
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
     synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
@@ -226,17 +263,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     with contextlib.ExitStack() as stack:
         human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
         stack.callback(human.close)
-        connection, sitl = stack.enter_context(vehicle_connection(cfg, opts, lockstep))
-        link_cfg = cfg.link.model_copy(update={"connection": connection})
-        link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
-        stack.callback(link.close)
-        link.connect(timeout_s=30.0)
-        simulator = simulator_client(opts, sitl)
-        if simulator is not None:
-            stack.callback(simulator.close)
-        camera = open_run_camera(cfg, sitl, link)
-        if camera is not None:
-            stack.callback(camera.close)
+        opened = stack.enter_context(vehicle(cfg, opts, lockstep, run_dir))
+        link, simulator, camera = opened.link, opened.simulator, opened.camera
         dataset = HumanDataset(run_dir / "human.csv" if opts.record else None)
         stack.callback(dataset.close)
         learner = Learner(cfg.learner, dataset, initial=initial)

@@ -20,7 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from sitl.camera import CameraRenderer
+    from sitl.frames import Frame
 
 log = logging.getLogger("sitl.server")
 M = mavlink
@@ -200,8 +201,10 @@ def _listener(host: str, port: int) -> socket.socket:
 class SitlServer:
     """Runs a SimVehicle behind MAVLink, camera and control-surface sockets."""
 
-    def __init__(self, cfg: SitlConfig) -> None:
+    def __init__(self, cfg: SitlConfig, frame_sink: FrameSink | None = None) -> None:
+        """``frame_sink``: where camera frames go instead of the TCP stream (a reader in this process)."""
         self.cfg = cfg
+        self._frame_sink = frame_sink
         net = cfg.network
         self.vehicle = SimVehicle(cfg)
         self.scheduler = TelemetryScheduler()
@@ -240,7 +243,7 @@ class SitlServer:
         self._next_camera_heartbeat_s = 0.0
 
     def _open_camera(self) -> _CameraFeed:
-        return _CameraFeed(self.cfg, self.vehicle)
+        return _CameraFeed(self.cfg, self.vehicle, self._frame_sink)
 
     # ----- addresses -------------------------------------------------------------------------
     def ports(self) -> dict[str, object]:
@@ -498,6 +501,20 @@ class SitlServer:
         cc.sock.close()
 
     def _reply_control(self, cc: ControlClient, line: bytes) -> None:
+        reply = self.control_reply(line)
+        try:  # bounded: a client that never reads its replies must not stall the simulation
+            cc.sock.settimeout(CONTROL_REPLY_TIMEOUT_S)
+            cc.sock.sendall((json.dumps(reply) + "\n").encode())
+            cc.sock.setblocking(False)
+        except OSError:
+            log.warning("control client does not take its replies; closing it")
+            self._close_control(cc)
+        self._flush_events()
+        self._flush_all()
+
+    def control_reply(self, line: bytes) -> dict[str, Any]:
+        """The reply to one control-surface request line, applied between frames (also the
+        entry of an in-process client, which has no socket to send it over)."""
         camera_uri = self.camera.server.uri if self.camera else None
         try:
             req = parse_request(line)
@@ -517,15 +534,7 @@ class SitlServer:
             # what the checks missed (JSON nested too deep, ...) is refused; it never ends the run
             log.warning("control request refused: %r", exc)
             reply = {"ok": False, "error": f"bad request ({type(exc).__name__}): {exc}"}
-        try:  # bounded: a client that never reads its replies must not stall the simulation
-            cc.sock.settimeout(CONTROL_REPLY_TIMEOUT_S)
-            cc.sock.sendall((json.dumps(reply) + "\n").encode())
-            cc.sock.setblocking(False)
-        except OSError:
-            log.warning("control client does not take its replies; closing it")
-            self._close_control(cc)
-        self._flush_events()
-        self._flush_all()
+        return reply
 
     def _fresh_scheduler(self) -> TelemetryScheduler:
         """Keep requested intervals but restart the phase, so an episode is independent of the last."""
@@ -562,17 +571,37 @@ def render_frame(renderer: CameraRenderer, v: SimVehicle) -> np.ndarray:
     return d.add_image_noise(image, v.dynamics.steps)
 
 
-class _CameraFeed:
-    """Renders the downward camera from the true pose and publishes it on the frame server."""
+class FrameSink(Protocol):
+    """Where the camera's frames go: :class:`~sitl.frames.FrameServer` (TCP readers), or a
+    reader in the same process."""
 
-    def __init__(self, cfg: SitlConfig, vehicle: SimVehicle) -> None:
+    @property
+    def uri(self) -> str: ...
+
+    @property
+    def port(self) -> int: ...
+
+    @property
+    def client_count(self) -> int: ...
+
+    def publish(self, frame: Frame, blocking: bool) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class _CameraFeed:
+    """Renders the downward camera from the true pose and publishes it on the frame server
+    (or on ``sink``)."""
+
+    def __init__(self, cfg: SitlConfig, vehicle: SimVehicle, sink: FrameSink | None = None) -> None:
         from sitl.camera import CameraRenderer
         from sitl.frames import FrameServer
 
         self.vehicle = vehicle
         self.renderer = CameraRenderer(cfg.camera, vehicle.world)
-        self.server = FrameServer(cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding,
-                                  jpeg_quality=cfg.camera.jpeg_quality)
+        self.server: FrameSink = sink if sink is not None else FrameServer(
+            cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding,
+            jpeg_quality=cfg.camera.jpeg_quality)
         self.frame_number = 0
         self.interval_s = 1.0 / cfg.camera.stream_rate_hz
         self._next_s = 0.0

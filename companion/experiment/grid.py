@@ -43,6 +43,9 @@ class ExperimentConfig(Section):
     updates_per_step: int = Field(40, ge=1, description="budgeted learner: updates per control step")
     prefix_evaluation: bool = Field(
         True, description="Demo and Int train once to the largest count; each count's checkpoint is a prefix")
+    eval_inprocess: bool = Field(
+        True, description="evaluation runs fly the lockstep SITL in the trial's own process (the same "
+        "episodes as over MAVLink, half the CPU; companion/experiment/inprocess.py); false: over MAVLink")
 
     @field_validator("participants")
     @classmethod

@@ -116,14 +116,20 @@ def train_run(setup: ExperimentSetup, cfg: CompanionConfig, run: TrainingRun, ru
 
 
 def evaluate_checkpoint(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
-    """The final policy alone on the held-out starts; only the episode records are kept."""
-    from companion.app import RunOptions, run_episodes
+    """The final policy alone on the held-out starts; only the episode records are kept.
 
+    With ``eval_inprocess`` the SITL runs in this process (the same episodes, half the CPU:
+    :mod:`companion.experiment.inprocess`), else in its own process over MAVLink.
+    """
+    from companion.app import RunOptions, open_vehicle, run_episodes
+    from companion.experiment.inprocess import inprocess_vehicle
+
+    vehicle = inprocess_vehicle if setup.exp.eval_inprocess else open_vehicle
     with tempfile.TemporaryDirectory(dir=trial_dir) as tmp:  # 100 runs of tlogs and checkpoints: dropped
         evaluation = run_episodes(cfg, RunOptions(
             pilot="none", condition="eval", episodes=setup.exp.eval_runs, checkpoint=checkpoint,
             run_dir=Path(tmp), config_path=setup.config_path, seed=setup.exp.eval_seed,
-            learn=False, record=False, lockstep=True))
+            learn=False, record=False, lockstep=True), vehicle=vehicle)
         shutil.copy(Path(tmp) / "episodes.jsonl", trial_dir / "eval_episodes.jsonl")
     return evaluation
 
