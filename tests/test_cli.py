@@ -43,7 +43,9 @@ def test_sigterm_stops_col_fly_cleanly_with_its_sitl_and_keeps_the_data(tmp_path
                             env=dict(os.environ, OMP_NUM_THREADS="1"))
     sitl: list[int] = []
     try:
-        assert wait_until(lambda: (run_dir / "checkpoints" / "episode_000.npz").exists(), 60.0), "no episode finished"
+        # the record line comes right after its checkpoint: wait for it, not for the checkpoint
+        records = run_dir / "episodes.jsonl"
+        assert wait_until(lambda: records.exists() and records.read_text().strip() != "", 60.0), "no episode finished"
         sitl = children_of(proc.pid)
         assert sitl, "col fly runs the SITL as its child"
         proc.send_signal(signal.SIGTERM)
