@@ -11,6 +11,11 @@ positives over frames with the pad out of view; median render and detect times. 
 be shared with other jobs, so times vary between runs. The last line of stdout is one JSON object.
 
     python bench/perception.py [--quick] [--frames N] [--seed S] [--lighting] [--blur] [--noise] [--jpeg]
+                               [--cv-threads N]
+
+OpenCV runs on one thread by default, as in the experiment (``--cv-threads 0``: OpenCV's own
+default). Besides the wall-clock medians, ``*_cpu_ms_p50`` are medians of this thread's CPU time,
+which a busy machine disturbs less.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 
 import cv2
@@ -92,18 +98,21 @@ def run(frames: int, seed: int, conditions: dict) -> dict:
     detector = PadDetector()
     pad = renderer.world.pad_ned(0.0)
     centre_err, radius_err, render_ms, detect_ms, partial_err = [], [], [], [], []
+    render_cpu_ms, detect_cpu_ms = [], []
     counts = {"full": 0, "partial": 0, "out": 0, "behind": 0, "miss": 0, "false_positive": 0, "partial_found": 0}
     for _ in range(frames):
         position, attitude = sample_pose(rng, pad, world_cfg.start_height_above_pad_m)
-        t0 = time.perf_counter()
+        c0, t0 = time.thread_time_ns(), time.perf_counter()
         image = renderer.render(position, attitude, 0.0)
-        t1 = time.perf_counter()
+        c1, t1 = time.thread_time_ns(), time.perf_counter()
         image = perturb(image, rng, conditions)
-        t2 = time.perf_counter()
+        c2, t2 = time.thread_time_ns(), time.perf_counter()
         found = detector.detect(image)
-        t3 = time.perf_counter()
+        c3, t3 = time.thread_time_ns(), time.perf_counter()
         render_ms.append((t1 - t0) * 1e3)
         detect_ms.append((t3 - t2) * 1e3)
+        render_cpu_ms.append((c1 - c0) / 1e6)
+        detect_cpu_ms.append((c3 - c2) / 1e6)
         gt = truth(renderer, pad, world_cfg.pad_radius_m, position, attitude)
         counts[gt["view"]] += 1
         if gt["view"] == "out" and found is not None:
@@ -118,7 +127,10 @@ def run(frames: int, seed: int, conditions: dict) -> dict:
             centre_err.append(math.hypot(found.u_px - gt["centre"][0], found.v_px - gt["centre"][1]))
             radius_err.append(abs(found.radius_px - gt["radius"]) / gt["radius"])
     errors = {"centre": centre_err, "radius": radius_err, "partial_centre": partial_err}
-    return summarise(counts, errors, render_ms, detect_ms, frames, {"seed": seed, **conditions})
+    result = summarise(counts, errors, render_ms, detect_ms, frames, {"seed": seed, **conditions})
+    result["render_cpu_ms_p50"] = round(float(np.percentile(render_cpu_ms, 50)), 4)
+    result["detect_cpu_ms_p50"] = round(float(np.percentile(detect_cpu_ms, 50)), 4)
+    return result
 
 
 def summarise(counts, errors, render_ms, detect_ms, frames, conditions) -> dict:
@@ -151,11 +163,17 @@ def main() -> None:
     parser.add_argument("--blur", action="store_true", help="random motion blur per frame")
     parser.add_argument("--noise", action="store_true", help="Gaussian sensor noise, sigma 8 levels")
     parser.add_argument("--jpeg", action="store_true", help="send frames through the JPEG wire encoding")
+    parser.add_argument("--cv-threads", type=int, default=1,
+                        help="cv2.setNumThreads (1, as in the experiment; 0: OpenCV's default)")
     args = parser.parse_args()
+    if args.cv_threads > 0:
+        cv2.setNumThreads(args.cv_threads)
     machine_ref = machine_ref_rt()  # at the start, before the bench's own work
     frames = args.frames or (100 if args.quick else 600)
     conditions = {k: getattr(args, k) for k in ("lighting", "blur", "noise", "jpeg")}
     result = run(frames, args.seed, conditions)
+    result["cv_threads"] = cv2.getNumThreads()
+    result["load_avg_1min"] = round(os.getloadavg()[0], 2)
     result["machine_ref_rt"] = round(machine_ref, 1)
     print(json.dumps(result))
 

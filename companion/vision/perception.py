@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -55,22 +56,80 @@ class PadDetector:
         self.cfg = cfg
         self._lo = np.array([cfg.hue_min, cfg.saturation_min, cfg.value_min], np.uint8)
         self._hi = np.array([cfg.hue_max, 255, 255], np.uint8)
+        self._limits: dict[int, np.ndarray] = {}  # per image size: the byte limits of _candidate_box
 
     def mask(self, image_bgr: np.ndarray) -> np.ndarray:
-        """Binary mask (0/255) of pad-coloured pixels."""
+        """Binary mask (0/255) of pad-coloured pixels.
+
+        The HSV threshold itself, computed only inside the bounding box of the pixels that pass a
+        cheaper test every pad colour passes (see :func:`_green_margin`): outside it the mask is
+        0 either way, so the mask is the one of the whole image, bit for bit."""
+        return self._mask(image_bgr)[0]
+
+    def _mask(self, image_bgr: np.ndarray) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+        """The mask and a box ``(x0, y0, x1, y1)`` outside which it is 0 (None: 0 everywhere)."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected an HxWx3 uint8 BGR image, got {image_bgr.dtype} {image_bgr.shape}")
-        return cv2.inRange(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._lo, self._hi)
+        height, width = image_bgr.shape[:2]
+        margin = _green_margin(self._lo.tobytes(), self._hi.tobytes())
+        if margin is None or not image_bgr.flags.c_contiguous or image_bgr.size < 3:  # no pre-test
+            return cv2.inRange(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._lo, self._hi), (0, 0, width, height)
+        box = self._candidate_box(image_bgr, margin)
+        mask = np.zeros((height, width), np.uint8)
+        if box is not None:
+            x0, y0, x1, y1 = box
+            hsv = cv2.cvtColor(image_bgr[y0:y1, x0:x1], cv2.COLOR_BGR2HSV)
+            cv2.inRange(hsv, self._lo, self._hi, dst=mask[y0:y1, x0:x1])
+        return mask, box
+
+    def _candidate_box(self, image_bgr: np.ndarray, margin: int) -> tuple[int, int, int, int] | None:
+        """``(x0, y0, x1, y1)`` holding every pixel with ``min(B, R) - G >= margin`` (a necessary
+        condition for the HSV box, see :func:`_green_margin`), or None if there is none.
+
+        On the interleaved bytes: ``min(flat[k], flat[k+2])`` is ``min(B, R)`` at the first byte
+        of each pixel, and adding a per-byte limit (``margin - 1`` there, 255 elsewhere, which
+        saturates) before a saturating subtraction leaves non-zero bytes exactly at candidates.
+        Three passes of integer SIMD instead of the HSV conversion and a 3-channel inRange."""
+        height, width = image_bgr.shape[:2]
+        flat = image_bgr.reshape(-1)  # a C-contiguous image
+        n = flat.size
+        limit = self._limits.get(n)
+        if limit is None:
+            limit = np.full(n - 2, 255, np.uint8)
+            limit[0::3] = margin - 1
+            self._limits = {**self._limits, n: limit}  # replaced, not mutated: safe across threads
+        low = cv2.min(flat[:-2], flat[2:])
+        limit_sum = cv2.add(flat[1:-1], limit)
+        hits = np.empty(n, np.uint8)
+        hits[-2:] = 0
+        cv2.subtract(low, limit_sum, dst=hits[:-2])
+        if not cv2.hasNonZero(hits):
+            return None
+        rows = hits.reshape(height, 3 * width)
+        if height % 4 == 0:  # rows in fours (a max of row pairs, twice): a quarter to scan
+            pairs = cv2.max(rows[0::2], rows[1::2])
+            x, y, w, h = cv2.boundingRect(cv2.max(pairs[0::2], pairs[1::2]))
+            y, h = 4 * y, 4 * h
+        else:
+            x, y, w, h = cv2.boundingRect(rows)
+        return x // 3, y, (x + w - 1) // 3 + 1, y + h
 
     def detect(self, image_bgr: np.ndarray) -> PadDetection | None:
         """The pad, or None when no pad-coloured convex blob of the minimum size is in view."""
-        contours, hierarchy = cv2.findContours(self.mask(image_bgr), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+        mask, box = self._mask(image_bgr)
+        if box is None:
+            return None  # not one pixel passes even the pre-test
+        # The contours of the box grown by a pixel (zeros there, or the image's own border), put
+        # back with ``offset``, are those of the whole mask, in the same order.
+        height, width = image_bgr.shape[:2]
+        x0, y0 = max(box[0] - 1, 0), max(box[1] - 1, 0)
+        roi = mask[y0:min(box[3] + 1, height), x0:min(box[2] + 1, width)]
+        contours, hierarchy = cv2.findContours(roi, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
         best = self._best_blob(contours, hierarchy)
         if best is None:
             return None
         index, area = best
         blob = contours[index]
-        height, width = image_bgr.shape[:2]
         dot = _dot_centre(contours, hierarchy[0], index, area)
         if _touches_border(blob, width, height):
             return _partial_detection(blob, area, dot, width, height)
@@ -151,13 +210,16 @@ def _on_convex_rim(contour: np.ndarray) -> np.ndarray:
         defects = cv2.convexityDefects(contour, hull)
     except cv2.error:  # self-intersecting digitised outlines; keep every point
         return keep
-    for start, end, _, depth in (defects.reshape(-1, 4) if defects is not None else ()):
-        if depth / 256.0 > _NOTCH_DEPTH_PX:
-            if start < end:
-                keep[start + 1:end] = False
-            else:
-                keep[start + 1:] = False
-                keep[:end] = False
+    if defects is None:
+        return keep
+    defects = defects.reshape(-1, 4)
+    deep = defects[defects[:, 3] > _NOTCH_DEPTH_PX * 256.0]  # depth in 1/256 px; the rest is rim
+    for start, end, _, _ in deep:
+        if start < end:
+            keep[start + 1:end] = False
+        else:
+            keep[start + 1:] = False
+            keep[:end] = False
     return keep
 
 
@@ -175,3 +237,24 @@ def fit_circle(points: np.ndarray) -> tuple[float, float, float] | None:
     if r2 <= 0:
         return None
     return float(cu + mx), float(cv + my), math.sqrt(r2)
+
+
+@lru_cache(maxsize=8)
+def _green_margin(lo: bytes, hi: bytes) -> int | None:
+    """The largest ``m`` with ``min(B, R) - G >= m`` for every colour whose HSV lies in
+    ``[lo, hi]`` (magenta: green is well below blue and red), found by converting all 2^24
+    colours with this OpenCV (0.1 s, once per process and thresholds); None if ``m < 1`` (then
+    the test would keep every pixel)."""
+    lo_a, hi_a = np.frombuffer(lo, np.uint8), np.frombuffer(hi, np.uint8)
+    levels = np.arange(256, dtype=np.int16)
+    low = np.minimum.outer(levels, levels)  # min(B, R) over a (B, R) plane
+    plane = np.empty((256, 256, 3), np.uint8)
+    plane[..., 0] = levels[:, None]
+    plane[..., 2] = levels[None, :]
+    best = 256
+    for green in range(256):
+        plane[..., 1] = green
+        inside = cv2.inRange(cv2.cvtColor(plane, cv2.COLOR_BGR2HSV), lo_a, hi_a) > 0
+        if inside.any():
+            best = min(best, int(low[inside].min()) - green)
+    return best if 1 <= best <= 255 else None
