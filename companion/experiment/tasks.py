@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
@@ -28,9 +29,21 @@ def run_training_safely(setup: ExperimentSetup, run: TrainingRun, out_dir: Path,
     try:
         return run_fn(setup, run, out_dir)
     except Exception as exc:  # any failure of one run is reported, the grid goes on
-        log.warning("training run %s failed: %r", run.key, exc)
-        return [TrialResult(trial=t, fingerprint=setup.fingerprint(), status="error", error=repr(exc))
+        log.warning("training run %s failed: %r", run.key, exc, exc_info=True)
+        error = f"{type(exc).__name__}: {exc} (at {_where(exc)})"  # str() keeps an OSError's file name
+        return [TrialResult(trial=t, fingerprint=setup.fingerprint(), status="error", error=error)
                 for t in run.trials]
+
+
+def _where(exc: BaseException) -> str:
+    """Where it was raised and the innermost frame of the project's own code on the way, e.g.
+    ``shutil.py:256 in copyfile, from runner.py:133 in evaluate_checkpoint``."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return "unknown place"
+    ours = [f for f in frames if "/companion/" in f.filename or "/sitl/" in f.filename]
+    places = [frames[-1]] + ([ours[-1]] if ours and ours[-1] is not frames[-1] else [])
+    return ", from ".join(f"{Path(f.filename).name}:{f.lineno} in {f.name}" for f in places)
 
 
 def init_worker() -> None:

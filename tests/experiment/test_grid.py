@@ -145,6 +145,8 @@ def test_grid_runs_in_worker_processes_and_resumes_without_redoing_finished_tria
     assert next(r for r in first if r.trial == done_before).eval_successes == 7
     lines = (tmp_path / "results.jsonl").read_text().splitlines()
     assert sum('"status": "error"' in line for line in lines) == 2
+    errors = [json.loads(line)["error"] for line in lines if '"status": "error"' in line]
+    assert all("RuntimeError: the SITL did not start (at test_grid.py:" in e and "in fake_run" in e for e in errors)
     second = run_grid(setup, tmp_path, workers=2, progress=False, run_fn=fake_run)
     assert {k: v for k, v in calls(tmp_path).items() if v > 1} == {"P2-int-08-s0": 2, "P2-int-04-s0": 2}
     assert [r.trial for r in second] == [r.trial for r in first]
