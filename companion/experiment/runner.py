@@ -16,7 +16,7 @@ import multiprocessing
 import shutil
 import tempfile
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Generator, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -158,8 +158,9 @@ def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool
     _write_setup(setup, out_dir, len(trials), len(done))
     bar = tqdm(total=len(trials), initial=len(trials) - len(todo), unit="trial", desc="experiment",
                disable=not progress)
+    batches = _runs(backend, setup, plan(setup.exp, todo), out_dir, workers, run_fn, address)
     try:
-        for batch in _runs(backend, setup, plan(setup.exp, todo), out_dir, workers, run_fn, address):
+        for batch in batches:
             for result in batch:
                 results.append(result)
                 if result.status == "ok":
@@ -167,6 +168,11 @@ def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool
                 bar.update(1)
                 bar.set_postfix_str(f"{result.trial.key} {result.status} {result.completion_pct:.0f}%")
     finally:
+        # An interrupt that lands here, outside the backend's generator, must still stop it
+        # now: left to the garbage collector, the pool went on running every pending run
+        # after the command had said "interrupted".
+        if isinstance(batches, Generator):
+            batches.close()
         bar.close()
     return [done[t.key] for t in trials if t.key in done]
 
@@ -191,12 +197,14 @@ def _run_pool(setup: ExperimentSetup, runs: list[TrainingRun], out_dir: Path, wo
         return
     context = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=init_worker)
+    futures = [pool.submit(run_training_safely, setup, r, out_dir, run_fn) for r in runs]
     try:
-        futures = [pool.submit(run_training_safely, setup, r, out_dir, run_fn) for r in runs]
         for future in as_completed(futures):
             yield future.result()
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)  # interrupted: finish running trials only
+        for future in futures:  # interrupted: nothing new starts; running runs finish
+            future.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _write_setup(setup: ExperimentSetup, out_dir: Path, trials: int, done: int) -> None:
