@@ -1,11 +1,7 @@
 """The lean flight runtime: ``col fly --checkpoint ... --condition eval`` and the SITL it starts run
-with torch (and every other training-only package) made unimportable, and fly exactly the
-setpoints that the full install flies from the same checkpoint and seed.
-
-The block is a ``sitecustomize`` module on ``PYTHONPATH``: it puts a finder at the head of
-``sys.meta_path`` that refuses the packages of the ``train``, ``mavsdk``, ``gamepad``, ``onnx``
-and ``cluster`` extras, in ``col`` and in the SITL process it starts (which inherits the
-environment), as if they were not installed.
+with torch (and every other package of the optional extras) made unimportable
+(:mod:`companion.testing.lean`), and fly exactly the setpoints that the full install flies from
+the same checkpoint and seed.
 """
 
 from __future__ import annotations
@@ -23,39 +19,17 @@ from pymavlink import mavutil
 from companion.config import LearnerConfig
 from companion.learning.checkpoint import save_checkpoint
 from companion.learning.snapshot import Normalisation, PolicySnapshot
+from companion.testing.lean import NOT_IN_THE_LEAN_INSTALL
+from companion.testing.lean import lean_env as _lean_env
 
 pytestmark = pytest.mark.e2e
 
 REPO = Path(__file__).resolve().parents[1]
-NOT_IN_THE_LEAN_INSTALL = ("torch", "stable_baselines3", "gymnasium", "matplotlib", "scipy", "pygame",
-                           "mavsdk", "onnx", "onnxruntime", "ray")
-
-BLOCKER = '''
-import sys
-
-BLOCKED = {blocked!r}
-
-
-class _NotInstalled:
-    """Refuse the extras' packages as if they were not installed."""
-
-    def find_spec(self, name, path=None, target=None):
-        if name.partition(".")[0] in BLOCKED:
-            raise ModuleNotFoundError(f"No module named {{name!r}} (not in the lean install)", name=name)
-        return None
-
-
-sys.meta_path.insert(0, _NotInstalled())
-'''
 
 
 def lean_env(tmp_path: Path) -> dict[str, str]:
     """An environment in which the training stack cannot be imported."""
-    site = tmp_path / "lean-site"
-    site.mkdir(exist_ok=True)
-    (site / "sitecustomize.py").write_text(BLOCKER.format(blocked=set(NOT_IN_THE_LEAN_INSTALL)))
-    path = os.pathsep.join([str(site), str(REPO), os.environ.get("PYTHONPATH", "")])
-    return dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS="1")
+    return {**_lean_env(tmp_path / "lean-site", prepend=[str(REPO)]), "OMP_NUM_THREADS": "1"}
 
 
 def full_env() -> dict[str, str]:
