@@ -24,9 +24,15 @@ RUN if ! command -v python3 >/dev/null; then \
 
 # -- build: the lean install into a venv that the runtime stage copies whole ------------------
 FROM base AS build
-RUN if ! python3 -m venv --help >/dev/null 2>&1 || ! python3 -c "import ensurepip" 2>/dev/null; then \
+# jsbsim publishes no Linux wheel for arm64: there pip builds it from source (CMake comes from
+# PyPI, the C++ compiler from here). Only this stage has a compiler; the runtime copies no tool.
+ARG TARGETARCH
+RUN packages=""; \
+    python3 -c "import ensurepip" 2>/dev/null || packages="python3-venv"; \
+    [ "${TARGETARCH:-amd64}" = amd64 ] || packages="$packages g++"; \
+    if [ -n "$packages" ]; then \
         apt-get update \
-        && apt-get install -y --no-install-recommends python3-venv \
+        && apt-get install -y --no-install-recommends $packages \
         && rm -rf /var/lib/apt/lists/* /var/cache/apt/*; \
     fi
 WORKDIR /src
@@ -38,14 +44,16 @@ RUN --mount=type=secret,id=ca_bundle \
     if [ -s /run/secrets/ca_bundle ]; then export PIP_CERT=/run/secrets/ca_bundle; fi \
     && python3 -m venv /opt/col \
     && /opt/col/bin/pip install --quiet /src \
-    && /opt/col/bin/pip uninstall --quiet -y pip setuptools lxml \
-    && find /opt/col -name tests -path "*site-packages/*/tests" -prune -exec rm -rf {} + \
-    && cd /opt/col/lib/python3*/site-packages/pymavlink/dialects \
-    && find v10 -type f ! -name "__init__*" ! -name "all.*" -delete \
-    && find v20 -type f ! -name "__init__*" ! -name "all.*" ! -name "common.*" ! -name "ardupilotmega.*" -delete
-# pymavlink ships about 40 MB of generated MAVLink dialects and needs lxml only to generate more:
-# the runtime keeps the dialects it loads (v10 `all`, pymavlink's default; v20 `all`, `common`,
-# `ardupilotmega`) and no lxml.
+    && /opt/col/bin/pip uninstall --quiet -y lxml setuptools pip \
+    && cd /opt/col/lib/python3*/site-packages \
+    && find . -name tests -path "./*/tests" -prune -exec rm -rf {} + \
+    && find . -name "*.pyi" -delete && rm -rf numpy/distutils \
+    && find pymavlink/dialects/v10 -type f ! -name "__init__*" ! -name "all.*" -delete \
+    && find pymavlink/dialects/v20 -type f ! -name "__init__*" ! -name "all.*" ! -name "common.*" \
+        ! -name "ardupilotmega.*" -delete
+# Left out of the runtime: pymavlink's generated MAVLink dialects but the ones it loads (v10
+# `all`, pymavlink's default; v20 `all`, `common`, `ardupilotmega`: about 30 MB), lxml (used
+# only to generate dialects), test folders, type stubs and numpy.distutils (a build tool).
 
 # -- dev: everything, the way a developer's checkout is installed --------------------------------
 FROM base AS dev

@@ -111,3 +111,15 @@ def test_lean_install_flies_the_same_setpoints_as_the_full_install(tmp_path: Pat
     assert lean_sp == full_sp
     assert lean["episodes"] == full["episodes"] == 1
     assert lean["success_rate"] == full["success_rate"]
+
+
+def test_export_without_the_onnx_extra_says_what_to_install(tmp_path: Path) -> None:
+    checkpoint = a_checkpoint(tmp_path / "policy.npz")
+    base = [sys.executable, "-m", "companion.cli", "export", str(checkpoint)]
+    onnx = subprocess.run([*base, "--format", "onnx"], env=lean_env(tmp_path), capture_output=True, text=True,
+                          timeout=120)
+    assert onnx.returncode == 2 and "cycle-of-learning[onnx]" in onnx.stderr
+    npz = subprocess.run([*base, "--format", "npz"], env=lean_env(tmp_path), capture_output=True, text=True,
+                         timeout=120)
+    assert npz.returncode == 0, npz.stderr[-2000:]
+    assert (tmp_path / "policy.export.npz").is_file()
