@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test test-all demo bench lint clean
+.PHONY: setup test test-all demo bench lint clean image-check
 
 setup: $(STAMP)
 
@@ -13,7 +13,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e '.[test,cluster]'
+	$(PY) -m pip install --quiet -e '.[train,mavsdk,gamepad,onnx,test,cluster]'
 	touch $(STAMP)
 
 test: setup
@@ -31,6 +31,11 @@ bench: setup
 lint: setup
 	$(PY) -m ruff check companion sitl colcommon tests bench
 	$(PY) -m mypy companion sitl colcommon
+
+# The lean runtime image built with podman, run, and flown with compose (docs/runtime.md).
+# Needs root and Debian's podman, debootstrap, runc, docker-compose; takes minutes: not in CI.
+image-check:
+	bash docker/image-check.sh
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -31,8 +31,8 @@ from companion.learning.checkpoint import load_checkpoint, save_checkpoint
 from companion.learning.dataset import HumanDataset
 from companion.learning.fit import Fit, fit_of
 from companion.learning.learner import Learner
-from companion.learning.policy import PolicySnapshot
 from companion.learning.runners import make_runner
+from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl

@@ -159,6 +159,23 @@ def eval_cmd(
     typer.echo(json.dumps(report))
 
 
+@app.command("export")
+def export_cmd(
+    checkpoint: Annotated[Path, typer.Argument(help="a checkpoint written by col fly / col demo")],
+    format: Annotated[str, typer.Option("--format", help="onnx (ONNX Runtime, TensorRT; needs the onnx extra) or npz (the checkpoint format, read by col fly and numpy.load)")] = "onnx",
+    opset: Annotated[int, typer.Option("--opset", help="ONNX opset (13 or newer)")] = 17,
+    out: Annotated[Path | None, typer.Option("--out", help="file to write (default: beside the checkpoint, .onnx or .export.npz)")] = None,
+) -> None:
+    """Write a policy for another runtime: input obs [batch, 15] in raw units, output actions [batch, 4] in (-1, 1)."""
+    from companion.learning.export import export_checkpoint
+
+    try:
+        written = export_checkpoint(checkpoint, format, out, opset)
+    except ColError as exc:
+        raise _fail(exc) from None
+    typer.echo(json.dumps({"format": format, "opset": opset if format == "onnx" else None, "path": str(written)}))
+
+
 @app.command()
 def demo(
     demonstrations: Annotated[int, typer.Option(min=1, help="episodes the scripted expert flies")] = 3,

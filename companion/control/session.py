@@ -25,7 +25,7 @@ from companion.control.safety import Geofence, SetpointLimiter
 from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
-from companion.learning.policy import PolicySnapshot
+from companion.learning.snapshot import PolicySnapshot
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.setpoints import VelocitySetpoint
 from companion.simulator import SimulatorClient

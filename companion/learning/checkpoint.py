@@ -21,14 +21,17 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import CheckpointError
-from companion.learning.policy import ACTION_NAMES, Normalisation, PolicyNet, PolicySnapshot
+from companion.learning.snapshot import ACTION_NAMES, Normalisation, PolicySnapshot
 from companion.vision.observation import OBS_DIM, OBS_NAMES
+
+if TYPE_CHECKING:  # reading and writing checkpoints needs no torch
+    from companion.learning.policy import PolicyNet
 
 FORMAT_NAME = "col-policy"
 FORMAT_VERSION = 1
@@ -67,7 +70,7 @@ def save_checkpoint(
 
     ``extra`` must be JSON-serialisable (e.g. pilot name, success so far).
     """
-    snap = policy.snapshot() if isinstance(policy, PolicyNet) else policy
+    snap = policy if isinstance(policy, PolicySnapshot) else policy.snapshot()
     if len(obs_names) != snap.obs_dim:
         raise ValueError(f"{len(obs_names)} observation names for a policy of {snap.obs_dim} inputs")
     meta = _metadata(snap, config, dataset_size, episode, condition, obs_names, extra or {})

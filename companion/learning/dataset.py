@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.errors import DatasetCorrupt
-from companion.learning.policy import ACT_DIM, ACTION_NAMES
+from companion.learning.snapshot import ACT_DIM, ACTION_NAMES
 from companion.vision.observation import OBS_NAMES
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.learning.dataset import DatasetView
-from companion.learning.policy import PolicySnapshot
+from companion.learning.snapshot import PolicySnapshot
 
 
 @dataclass(frozen=True)

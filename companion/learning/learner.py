@@ -22,12 +22,11 @@ from enum import Enum
 from typing import Protocol
 
 import numpy as np
-import torch
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.dataset import DatasetView
-from companion.learning.policy import Normalisation, PolicyNet, PolicySnapshot
+from companion.learning.snapshot import Normalisation, PolicySnapshot, random_snapshot
 from companion.learning.trainer import MlpTrainer, one_blas_thread
 from companion.vision.observation import OBS_DIM
 
@@ -76,9 +75,9 @@ class Learner:
         self.config = config
         self.dataset = dataset
         self.rng = rng if rng is not None else np.random.default_rng(config.seed)
-        model = self._make_model(config, obs_dim, normalisation, initial)
+        start = self._initial_weights(config, obs_dim, normalisation, initial)
         one_blas_thread()  # process-wide: threaded BLAS is ~10x slower on these small products
-        self.trainer = MlpTrainer.from_snapshot(model.snapshot(), lr=config.learning_rate,
+        self.trainer = MlpTrainer.from_snapshot(start, lr=config.learning_rate,
                                                 batch_size=config.batch_size)
         self.updates = initial.version if initial else 0
         self.last_loss = math.nan
@@ -91,18 +90,29 @@ class Learner:
         self._latest = self.trainer.snapshot(self.updates, self._trained_size)
 
     @staticmethod
-    def _make_model(config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
-                    initial: PolicySnapshot | None) -> PolicyNet:
+    def _initial_weights(config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
+                         initial: PolicySnapshot | None) -> PolicySnapshot:
+        """The weights to start from: ``initial`` as it is, or a fresh seeded network drawn by
+        torch (by NumPy where torch is not installed: the lean runtime flies and learns too)."""
         if initial is not None:
             if initial.obs_dim != obs_dim or initial.hidden != tuple(config.hidden):
                 raise ConfigError(
                     f"initial policy is {initial.obs_dim}->{initial.hidden}, the config asks for "
                     f"{obs_dim}->{tuple(config.hidden)}; start fresh or use a matching config"
                 )
-            return PolicyNet.from_snapshot(initial)
+            return initial
+        try:
+            import torch
+
+            from companion.learning.policy import PolicyNet
+        except ImportError:
+            log.warning("torch is not installed: the fresh policy's weights are drawn by NumPy (the "
+                        "same distribution, another draw than an install with torch makes)")
+            return random_snapshot(obs_dim, config.hidden, init_std=config.init_std, seed=config.seed,
+                                   normalisation=normalisation)
         generator = torch.Generator().manual_seed(config.seed)
         return PolicyNet(obs_dim, config.hidden, init_std=config.init_std, generator=generator,
-                         normalisation=normalisation)
+                         normalisation=normalisation).snapshot()
 
     # -- the update ---------------------------------------------------------------------
     def step(self) -> float:

@@ -34,13 +34,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from companion.config import LearnerConfig
 from companion.errors import ColError, ConfigError, DatasetCorrupt
 from companion.learning.dataset import DatasetView, csv_header
 from companion.learning.learner import Learner, LearnerState
-from companion.learning.policy import ACT_DIM, Normalisation, PolicySnapshot
+from companion.learning.snapshot import ACT_DIM, Normalisation, PolicySnapshot
+from companion.learning.trainer import limit_torch_threads
 from companion.vision.observation import OBS_NAMES
 
 _HEADER = struct.Struct("!BI")  # frame kind, payload length
@@ -273,7 +273,7 @@ def _child_main(conn: Connection, job: _ChildJob) -> None:
     tearing down torch at a low priority on a loaded machine can take seconds.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent, which stops us
-    torch.set_num_threads(job.config.torch_threads)
+    limit_torch_threads(job.config.torch_threads)
     link = _ChildLink(conn)
     learner: Learner | None = None
     try:

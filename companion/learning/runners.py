@@ -15,11 +15,10 @@ import sys
 import threading
 import time
 
-import torch
-
 from companion.learning.learner import Learner, LearnerState
 from companion.learning.learner_process import LearnerProcess
-from companion.learning.policy import PolicySnapshot
+from companion.learning.snapshot import PolicySnapshot
+from companion.learning.trainer import limit_torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -202,7 +201,7 @@ class LearnerThread:
         self.stop()
 
     def _run(self) -> None:
-        torch.set_num_threads(self.learner.config.torch_threads)
+        limit_torch_threads(self.learner.config.torch_threads)
         _lower_this_threads_priority(self.learner.config.thread_nice)
         try:
             while not self._stop.is_set():

@@ -25,6 +25,7 @@ under ``threadpoolctl.threadpool_limits(1)`` (:func:`one_blas_thread`).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from itertools import pairwise
 from typing import Any
@@ -32,7 +33,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from companion.learning.policy import Normalisation, PolicySnapshot
+from companion.learning.snapshot import Normalisation, PolicySnapshot
 
 F32 = np.float32
 
@@ -174,3 +175,11 @@ class MlpTrainer:
 def one_blas_thread() -> Any:
     """A context in which NumPy's matrix products run on one thread (see the module docstring)."""
     return threadpool_limits(1, user_api="blas")
+
+
+def limit_torch_threads(n: int) -> None:
+    """Cap torch's intra-op threads where torch is loaded; the NumPy trainer needs no torch, so
+    a flight-only install (or a process that never imported it) has nothing to cap."""
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(n)

@@ -39,5 +39,14 @@ def open_link(
     if kind == "mavsdk":
         from companion.link.mavsdk_link import MavsdkLink
 
+        _require_mavsdk()
         return MavsdkLink(cfg, tlog_path=tlog_path)
     raise ConfigError(f"unknown link kind {kind!r}; use 'pymavlink' or 'mavsdk'")
+
+
+def _require_mavsdk() -> None:
+    """The MAVSDK backend is an extra; say how to get it before connecting fails deep inside."""
+    import importlib.util
+
+    if importlib.util.find_spec("mavsdk") is None:
+        raise ConfigError("the MAVSDK link needs the mavsdk package: pip install 'cycle-of-learning[mavsdk]'")
