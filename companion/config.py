@@ -97,7 +97,8 @@ class PerceptionConfig(Section):
     """companion.perception: camera source and pad detector (see docs/camera.md)."""
 
     camera: str = Field(
-        "auto", description='"auto" (the vehicle\'s MAVLink camera), colf://host:port, a device index, a file or a URL'
+        "auto", description='"auto" (the vehicle\'s MAVLink camera), colf://host:port, a device index, a file or a URL; '
+        '"none": no camera, the pad is never visible (a test mode)'
     )
     open_timeout_s: float = Field(3.0, gt=0, description="a source that gives no frame this long fails at start")
     frame_timeout_s: float = Field(0.2, ge=0, description="how long to wait for the frame of a control step")

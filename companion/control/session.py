@@ -22,7 +22,7 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import SessionConfig
 from companion.control.arbiter import Arbiter, Phase
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.sequences import arm_when_ready, leave_safe, take_off
+from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
 from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
@@ -193,7 +193,8 @@ class EpisodeRunner:
         if d.is_offboard(snap.mode):
             return snap
         if not d.stream_before_offboard:
-            self.p.link.set_mode(d.offboard_mode)
+            when_ready(lambda: self.p.link.set_mode(d.offboard_mode), f"enter {d.offboard_mode}",
+                       self.p.cfg.arm_timeout_s)
         if not snap.armed:
             arm_when_ready(self.p.link, self.p.cfg.arm_timeout_s)
         self._send(HOLD)
