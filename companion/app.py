@@ -35,7 +35,7 @@ from companion.learning.policy import PolicySnapshot
 from companion.learning.runners import make_runner
 from companion.link import open_link
 from companion.link.base import VehicleLink
-from companion.link.dialect import Dialect
+from companion.link.dialect import Dialect, dialect_for
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
@@ -243,7 +243,8 @@ def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir
         link_cfg = cfg.link.model_copy(update={"connection": connection})
         link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
         stack.callback(link.close)
-        link.connect(timeout_s=30.0)
+        snapshot = link.connect(timeout_s=30.0)
+        check_lockstep(dialect_for(snapshot.autopilot), lockstep)
         simulator = simulator_client(opts, sitl)
         if simulator is not None:
             stack.callback(simulator.close)
