@@ -298,6 +298,10 @@ class EpisodeRunner:
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
     def _leave_safe_after_error(self) -> None:
+        """On a vehicle that flies to its starts; a simulator's reset takes the vehicle over anyway
+        (and lockstep experiments stay exactly as they were)."""
+        if self.p.simulator is not None:
+            return
         try:
             self.leave_safe()
         except ColError as exc:  # no heartbeat yet: nothing is flying on our account

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from companion.control.arbiter import Phase
@@ -59,6 +60,10 @@ class DialectLink(KinematicLink):
 
     def takeoff(self, alt_m: float) -> None:
         self.calls.append(f"takeoff {alt_m}")
+
+    def send_position_ned(self, north_m: float, east_m: float, down_m: float, yaw_rad: float,  # type: ignore[override]
+                          echo_time_boot_ms: int | None = None) -> None:
+        self.pos = np.array([north_m, east_m, down_m])  # a point mass that is where it is asked to be
 
     def land(self) -> None:
         self.calls.append("land")
@@ -186,6 +191,7 @@ def test_an_episode_error_leaves_the_vehicle_safe(dialect: Dialect) -> None:
 
     link.send_velocity_body = refuse_after_five  # type: ignore[method-assign]
     runner, _ = make_runner(link, ScriptedHuman(set()))
+    runner.p.simulator = None  # a vehicle without episode resets: it flies to the start point
     record = runner.run(0, Phase.DEMONSTRATION, seed=1)
-    assert record.outcome == "error"
+    assert record.outcome == "error" and "started by flying to the start point" in record.notes
     assert link.calls[-1] in ("land", "mode LAND")  # the default end_of_run policy

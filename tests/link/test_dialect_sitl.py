@@ -18,7 +18,7 @@ from companion.link.mavlink_link import MavlinkLink
 from companion.simulator import start_sitl
 from tests.conftest import free_port
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]  # real time, on a shared machine
 SETTLE_S = 3.0
 
 
@@ -33,7 +33,8 @@ def link(personality: str, tmp_path: Path) -> Iterator[MavlinkLink]:
     config = tmp_path / "sitl.toml"
     config.write_text(f"[sitl.personality]\nprearm_settle_s = {SETTLE_S}\n")
     port = free_port()
-    sitl = start_sitl(port, clock="realtime", config=config, camera=False, extra_args=["--autopilot", personality])
+    sitl = start_sitl(port, clock="realtime", config=config, camera=False, timeout_s=120.0,
+                      extra_args=["--autopilot", personality])
     link = MavlinkLink(LinkConfig(connection=f"udpin:127.0.0.1:{port}"), tlog_path=tmp_path / "link.tlog")
     try:
         link.connect(timeout_s=20.0)
