@@ -28,12 +28,22 @@ class LinkTimeout(LinkError):
 
 
 class CommandRejected(LinkError):
-    """The vehicle answered a command with a result other than ACCEPTED."""
+    """A command was refused: by the vehicle (a COMMAND_ACK other than ACCEPTED, with the
+    reasons it gave in STATUSTEXT), or by the companion before asking it (``origin`` says which).
+    """
 
-    def __init__(self, command: str, result: str, hint: str = "") -> None:
+    def __init__(self, command: str, result: str, hint: str = "", *, origin: str = "vehicle",
+                 reasons: tuple[str, ...] = ()) -> None:
         self.command = command
         self.result = result
-        msg = f"vehicle rejected {command}: {result}"
+        self.origin = origin
+        self.reasons = tuple(reasons)
+        if origin == "companion":
+            msg = f"the companion refused {command} without asking the vehicle ({result})"
+        else:
+            msg = f"vehicle rejected {command}: {result}"
+            if self.reasons:
+                msg += " (vehicle says: " + "; ".join(repr(r) for r in self.reasons) + ")"
         super().__init__(f"{msg}. {hint}" if hint else msg)
 
 

@@ -35,6 +35,7 @@ from companion.learning.runners import make_runner
 from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
+from companion.link.dialect import Dialect, dialect_for
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
@@ -141,12 +142,18 @@ class RunResult:
     def successes(self) -> int:
         return sum(1 for r in self.records if r.success)
 
+    @property
+    def judged(self) -> int:
+        """Episodes whose success is known (a real vehicle has no ground truth: None)."""
+        return sum(1 for r in self.records if r.success is not None)
+
     def summary(self) -> dict[str, object]:
-        n = len(self.records)
+        n, judged = len(self.records), self.judged
         return {
             "episodes": n,
-            "successes": self.successes,
-            "success_rate": round(self.successes / n, 4) if n else 0.0,
+            "successes": self.successes if judged else None,
+            "success_rate": round(self.successes / judged, 4) if judged else None,
+            "success_unknown": n - judged,
             "human_samples": sum(r.human_samples for r in self.records),
             "interventions": sum(r.interventions for r in self.records),
             "dataset_size": self.dataset_size,
@@ -190,7 +197,11 @@ def simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorCli
 def open_run_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: VehicleLink,
                  camera_component: int = 100) -> CameraSource | None:
     """The camera. ``"auto"``: our SITL's stream, or on another vehicle the stream its MAVLink
-    camera (component 100, MAV_COMP_ID_CAMERA) advertises in VIDEO_STREAM_INFORMATION."""
+    camera (component 100, MAV_COMP_ID_CAMERA) advertises in VIDEO_STREAM_INFORMATION.
+    ``"none"``: no camera (a test mode: every observation says the pad is not visible)."""
+    if cfg.perception.camera.strip().lower() == "none":
+        log.warning("camera none: a test mode, the pad is reported as not visible in every observation")
+        return None
     auto_uri = sitl.ports.get("camera_uri") if sitl is not None else None
     if auto_uri is None and cfg.perception.camera.strip() == "auto":
         try:
@@ -217,6 +228,7 @@ class Vehicle:
     link: VehicleLink
     simulator: SimulatorClient | None
     camera: CameraSource | None
+    owned: bool = False  # a SITL started for this run: stopped after it, nothing to leave safe
 
 
 VehicleOpener = Callable[[CompanionConfig, RunOptions, bool, Path], AbstractContextManager[Vehicle]]
@@ -231,14 +243,15 @@ def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir
         link_cfg = cfg.link.model_copy(update={"connection": connection})
         link = open_link(link_cfg, tlog_path=run_dir / "session.tlog")
         stack.callback(link.close)
-        link.connect(timeout_s=30.0)
+        snapshot = link.connect(timeout_s=30.0)
+        check_lockstep(dialect_for(snapshot.autopilot), lockstep)
         simulator = simulator_client(opts, sitl)
         if simulator is not None:
             stack.callback(simulator.close)
         camera = open_run_camera(cfg, sitl, link)
         if camera is not None:
             stack.callback(camera.close)
-        yield Vehicle(link, simulator, camera)
+        yield Vehicle(link, simulator, camera, owned=sitl is not None)
 
 
 def run_episodes(cfg: CompanionConfig, opts: RunOptions,
@@ -251,7 +264,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
     synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
-    lockstep = opts.lockstep if opts.lockstep is not None else (synthetic and not opts.connection)
+    own_lockstep = synthetic and not opts.connection and _sitl_autopilot(opts.config_path) == "px4"
+    lockstep = opts.lockstep if opts.lockstep is not None else own_lockstep
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
     initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -282,6 +296,9 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
         )
         episode_runner = EpisodeRunner(parts)
+        check_lockstep(episode_runner.dialect, lockstep)
+        if not opened.owned:  # after the last episode, an error or Ctrl-C: before the link closes
+            stack.callback(_end_of_run, episode_runner)
         seed0 = cfg.session.seed + (first - opts.first_episode) if opts.seed is None else opts.seed
         with (run_dir / "episodes.jsonl").open("a") as log_file:
             for k, phase in enumerate(phases):
@@ -308,6 +325,27 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     return result
+
+
+def _sitl_autopilot(config_path: Path | None) -> str:
+    """The personality of the SITL a run would start (ArduPilot's has no lockstep)."""
+    from sitl.config import load_sitl_config
+
+    return load_sitl_config(config_path).personality.autopilot
+
+
+def check_lockstep(dialect: Dialect, lockstep: bool) -> None:
+    """Lockstep needs the vehicle's frame marker; ArduPilot has none."""
+    if lockstep and dialect.lockstep_marker is None:
+        raise ConfigError(
+            f"lockstep needs a frame marker (SYSTEM_TIME) that {dialect.name} does not send; "
+            "fly it in real time (--realtime); lockstep is our SITL's PX4 personality's"
+        )
+
+
+def _end_of_run(runner: EpisodeRunner) -> None:
+    log.warning("end of run: vehicle %s (companion.session.end_of_run = %s)",
+                runner.leave_safe(), runner.p.cfg.end_of_run)
 
 
 def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:

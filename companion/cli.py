@@ -78,7 +78,7 @@ def _fail(exc: Exception) -> typer.Exit:
 def fly(
     connect: ConnectOpt = None,
     simulator: SimulatorOpt = None,
-    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), colf://host:port, device index, file or URL')] = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
     pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
@@ -106,28 +106,33 @@ def fly(
     except KeyboardInterrupt:
         raise _interrupted(run_dir) from None
     for r in result.records:
-        typer.echo(f"episode {r.episode:3d} {r.phase:13s} {r.outcome:9s} success={r.success} "
+        success = "unknown" if r.success is None else r.success
+        typer.echo(f"episode {r.episode:3d} {r.phase:13s} {r.outcome:9s} success={success} "
                    f"steps={r.steps} human_samples={r.human_samples} interventions={r.interventions}"
                    + (f" touchdown {r.touchdown_distance_m:.2f} m" if r.touchdown_distance_m is not None else ""))
     typer.echo(f"dataset: {result.run_dir / 'human.csv'} ({result.dataset_size} samples); checkpoints: {result.run_dir / 'checkpoints'}")
     typer.echo(json.dumps(result.summary()))
 
 
-def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | None, config: Path | None) -> dict:  # type: ignore[no-untyped-def]
-    """Fly ``checkpoint`` alone on seeded starts; success rate with a 95 % interval."""
+def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | None, config: Path | None,  # type: ignore[no-untyped-def]
+             connection: str | None = None, simulator: str | None = None) -> dict:
+    """Fly ``checkpoint`` alone on seeded starts; success rate with a 95 % interval (None where
+    success cannot be judged: a vehicle without the SITL's ground truth)."""
     from companion.app import RunOptions
 
-    opts = RunOptions(pilot="none", condition="eval", episodes=episodes, checkpoint=checkpoint, run_dir=run_dir,
-                      config_path=config, seed=seed, learn=False, record=False, lockstep=True)
+    opts = RunOptions(connection=connection, simulator=simulator, pilot="none", condition="eval", episodes=episodes,
+                      checkpoint=checkpoint, run_dir=run_dir, config_path=config, seed=seed, learn=False,
+                      record=False, lockstep=None if connection else True)
     result = _run(cfg, opts, "eval")
-    n, k = len(result.records), result.successes
-    lo, hi = wilson_interval(k, n)
+    n, k, judged = len(result.records), result.successes, result.judged
+    lo, hi = wilson_interval(k, judged)
     distances = [r.touchdown_distance_m for r in result.records if r.touchdown_distance_m is not None]
     return {
         "episodes": n,
-        "successes": k,
-        "success_rate": round(k / n, 4) if n else 0.0,
-        "ci95": [round(lo, 4), round(hi, 4)],
+        "successes": k if judged else None,
+        "success_rate": round(k / judged, 4) if judged else None,
+        "success_unknown": n - judged,
+        "ci95": [round(lo, 4), round(hi, 4)] if judged else None,
         "touchdown_distance_m_median": round(statistics.median(distances), 3) if distances else None,
         "touchdowns": len(distances),
         "timeouts": sum(r.outcome == "timeout" for r in result.records),
@@ -138,24 +143,33 @@ def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | No
 @app.command("eval")
 def eval_cmd(
     checkpoint: Annotated[Path, typer.Argument(help="a checkpoint written by col fly / col demo")],
+    connect: ConnectOpt = None,
+    simulator: SimulatorOpt = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto", colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
     episodes: Annotated[int, typer.Option(min=1, help="evaluation episodes")] = 20,
     config: ConfigOpt = None,
     seed: Annotated[int, typer.Option(help="seed of the first start (held-out starts use a different range than training)")] = 100_000,
     run_dir: RunDirOpt = None,
     verbose: VerboseOpt = False,
 ) -> None:
-    """Fly a policy alone in the SITL (lockstep) and report its success rate."""
+    """Fly a policy alone (in the SITL, lockstep; or on the vehicle --connect names) and report its success rate."""
     _setup(verbose)
     try:
         cfg = _load(config)
-        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config)
+        if camera is not None:
+            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
+        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config, connect, simulator)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:
         raise _interrupted(run_dir) from None
-    typer.echo(f"success {report['successes']}/{report['episodes']} = {report['success_rate']:.0%} "
-               f"(95% CI {report['ci95'][0]:.0%}-{report['ci95'][1]:.0%}); median touchdown distance "
-               f"{report['touchdown_distance_m_median']} m")
+    if report["success_rate"] is None:
+        typer.echo(f"success unknown for all {report['episodes']} episodes (no ground truth); "
+                   f"{report['touchdowns']} touchdowns, median estimated distance {report['touchdown_distance_m_median']} m")
+    else:
+        typer.echo(f"success {report['successes']}/{report['episodes'] - report['success_unknown']} = "
+                   f"{report['success_rate']:.0%} (95% CI {report['ci95'][0]:.0%}-{report['ci95'][1]:.0%}); "
+                   f"median touchdown distance {report['touchdown_distance_m_median']} m")
     typer.echo(json.dumps(report))
 
 

@@ -70,6 +70,12 @@ class SessionConfig(Section):
     start_xy_range_m: float = Field(3.0, ge=0)
     start_tolerance_m: float = Field(0.3, gt=0, description="at the start point within this -> hand over")
     takeoff_alt_m: float = Field(2.5, gt=0)
+    arm_timeout_s: float = Field(
+        60.0, ge=0, description="a vehicle refusing to arm (still booting) is retried this long"
+    )
+    end_of_run: Literal["land", "hold"] = Field(
+        "land", description="after the last episode, Ctrl-C or an episode error: land or hold"
+    )
 
 
 class SafetyConfig(Section):
@@ -91,7 +97,8 @@ class PerceptionConfig(Section):
     """companion.perception: camera source and pad detector (see docs/camera.md)."""
 
     camera: str = Field(
-        "auto", description='"auto" (the vehicle\'s MAVLink camera), colf://host:port, a device index, a file or a URL'
+        "auto", description='"auto" (the vehicle\'s MAVLink camera), colf://host:port, a device index, a file or a URL; '
+        '"none": no camera, the pad is never visible (a test mode)'
     )
     open_timeout_s: float = Field(3.0, gt=0, description="a source that gives no frame this long fails at start")
     frame_timeout_s: float = Field(0.2, ge=0, description="how long to wait for the frame of a control step")

@@ -156,13 +156,35 @@ class DisturbanceConfig(Section):
     )
 
 
+class PersonalityConfig(Section):
+    """Which autopilot the vehicle looks like from outside (sitl/personality.py, docs/sitl.md)."""
+
+    autopilot: Literal["px4", "ardupilot"] = Field(
+        "px4", description="px4: PX4 modes, OFFBOARD, SYSTEM_TIME lockstep; ardupilot: ArduCopter modes, GUIDED"
+    )
+    prearm_settle_s: float = Field(
+        10.0, ge=0, le=600, description="ardupilot: arming refused this long after boot (EKF settling), with PreArm reasons"
+    )
+    guid_timeout_s: float = Field(3.0, gt=0, le=60, description="ardupilot: GUID_TIMEOUT, velocity setpoints missing -> stop")
+
+
 class SitlConfig(Section):
+    personality: PersonalityConfig = PersonalityConfig()
     clock: ClockConfig = ClockConfig()
     network: NetworkConfig = NetworkConfig()
     autopilot: AutopilotConfig = AutopilotConfig()
     world: WorldConfig = WorldConfig()
     camera: CameraConfig = CameraConfig()
     disturbance: DisturbanceConfig = DisturbanceConfig()
+
+    @model_validator(mode="after")
+    def _lockstep_is_px4(self) -> SitlConfig:
+        if self.personality.autopilot == "ardupilot" and self.clock.mode == "lockstep":
+            raise ValueError(
+                "lockstep needs the PX4 personality's SYSTEM_TIME frame marker; ArduPilot has no "
+                "companion lockstep: run the ardupilot personality with clock mode realtime"
+            )
+        return self
 
 
 def check_top_level(data: dict, source: str) -> None:

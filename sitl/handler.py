@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.modes import Mode
 from sitl.offboard import TargetFields
 from sitl.params import encode_value
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
@@ -78,10 +77,9 @@ class MessageHandler:
 
     def _on_set_mode(self, m: mavlink.MAVLink_message) -> HandleResult:
         if m.target_system in (0, self.sysid):
-            try:
-                self.v.request_mode(Mode.from_custom_mode(m.custom_mode))
-            except ValueError as exc:
-                self.v.say(M.MAV_SEVERITY_WARNING, str(exc))
+            result, why = self.v.set_mode_custom(m.custom_mode)
+            if result != M.MAV_RESULT_ACCEPTED and why:
+                self.v.say(M.MAV_SEVERITY_WARNING, why)
         return HandleResult([])
 
     # ----- parameters ----------------------------------------------------------------------
@@ -160,11 +158,7 @@ class MessageHandler:
     def _set_mode(self, p: tuple[float, ...]) -> tuple[int, str]:
         if not (math.isfinite(p[1]) and math.isfinite(p[2])):
             return M.MAV_RESULT_DENIED, "Mode refused: non-finite mode number"
-        try:
-            mode = Mode.from_main_sub(int(p[1]), int(p[2]))
-        except ValueError as exc:
-            return M.MAV_RESULT_DENIED, str(exc)
-        return self.v.request_mode(mode)
+        return self.v.set_mode_numbers(int(p[1]), int(p[2]))
 
     def _request_message(self, msg_id: float) -> tuple[int, str, list[Outgoing]]:
         composer = COMPOSERS.get(int(msg_id)) if math.isfinite(msg_id) else None

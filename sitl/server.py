@@ -27,6 +27,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, parse_request
 from sitl.handler import CameraInfo, MessageHandler
+from sitl.personality import make_vehicle
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
 from sitl.vehicle import AUTOPILOT, CAMERA, Outgoing, SimVehicle
 
@@ -206,8 +207,8 @@ class SitlServer:
         self.cfg = cfg
         self._frame_sink = frame_sink
         net = cfg.network
-        self.vehicle = SimVehicle(cfg)
-        self.scheduler = TelemetryScheduler()
+        self.vehicle: SimVehicle = make_vehicle(cfg)
+        self.scheduler = TelemetryScheduler(self.vehicle.default_rates_hz)
         self.lockstep = cfg.clock.mode == "lockstep"
         self.steps_per_frame = max(1, int(round(cfg.clock.fdm_rate_hz / cfg.clock.frame_rate_hz)))
         self.sel = selectors.DefaultSelector()
@@ -356,7 +357,8 @@ class SitlServer:
                 self._broadcast(Outgoing(CAMERA, hb))
         self._flush_events()
         self._greet_silent_udp_peers()
-        self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_SYSTEM_TIME](v)))
+        if v.sends_frame_marker:
+            self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_SYSTEM_TIME](v)))
         self._flush_all()
 
     def _greet_silent_udp_peers(self) -> None:
@@ -538,7 +540,7 @@ class SitlServer:
 
     def _fresh_scheduler(self) -> TelemetryScheduler:
         """Keep requested intervals but restart the phase, so an episode is independent of the last."""
-        fresh = TelemetryScheduler()
+        fresh = TelemetryScheduler(self.vehicle.default_rates_hz)
         for msg_id in COMPOSERS:
             interval = self.scheduler.interval_s(msg_id)
             if interval is None:

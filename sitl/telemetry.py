@@ -81,7 +81,8 @@ def heartbeat(v: SimVehicle) -> mavlink.MAVLink_message:
     if v.armed:
         base |= M.MAV_MODE_FLAG_SAFETY_ARMED
     status = M.MAV_STATE_ACTIVE if v.armed else M.MAV_STATE_STANDBY
-    return M.MAVLink_heartbeat_message(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, v.mode.custom_mode, status, 3)
+    autopilot, custom_mode = v.heartbeat_mode()
+    return M.MAVLink_heartbeat_message(M.MAV_TYPE_QUADROTOR, autopilot, base, custom_mode, status, 3)
 
 
 def sys_status(v: SimVehicle) -> mavlink.MAVLink_message:

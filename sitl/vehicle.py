@@ -46,7 +46,13 @@ def hold_setpoint(state: VehicleState) -> Setpoint:
 
 
 class SimVehicle:
-    """One multirotor with a PX4-like autopilot in a world with a pad on a ground vehicle."""
+    """One multirotor with a PX4-like autopilot in a world with a pad on a ground vehicle.
+
+    sitl/personality.py derives the ArduCopter-like one; the hooks it overrides are marked.
+    """
+
+    sends_frame_marker = True  # personality: SYSTEM_TIME ends every frame (lockstep)
+    default_rates_hz: dict[int, float] | None = None  # personality: None = PX4's streams
 
     def __init__(self, cfg: SitlConfig) -> None:
         self.cfg = cfg
@@ -149,6 +155,26 @@ class SimVehicle:
         if self.mode is Mode.AUTO_LAND:
             return mavlink.MAV_LANDED_STATE_LANDING
         return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def heartbeat_mode(self) -> tuple[int, int]:
+        """Personality: HEARTBEAT (autopilot, custom_mode)."""
+        return mavlink.MAV_AUTOPILOT_PX4, self.mode.custom_mode
+
+    def set_mode_numbers(self, main: int, sub: int) -> tuple[int, str]:
+        """Personality: MAV_CMD_DO_SET_MODE's param2 and param3 (PX4: main and sub mode)."""
+        try:
+            mode = Mode.from_main_sub(main, sub)
+        except ValueError as exc:
+            return mavlink.MAV_RESULT_DENIED, str(exc)
+        return self.request_mode(mode)
+
+    def set_mode_custom(self, custom_mode: int) -> tuple[int, str]:
+        """Personality: the SET_MODE message's custom_mode."""
+        try:
+            mode = Mode.from_custom_mode(custom_mode)
+        except ValueError as exc:
+            return mavlink.MAV_RESULT_DENIED, str(exc)
+        return self.request_mode(mode)
 
     def setpoints_fresh(self) -> bool:
         return self.time_s - self._last_offboard_s <= self.params.get("COM_OF_LOSS_T")

@@ -8,11 +8,21 @@ from pathlib import Path
 
 import pytest
 
-from companion.app import RunOptions, next_episode, open_run_camera, run_episodes
+from companion.app import (
+    RunOptions,
+    RunResult,
+    check_lockstep,
+    next_episode,
+    open_run_camera,
+    run_episodes,
+)
 from companion.config import CompanionConfig
-from companion.errors import CameraError, CheckpointError
+from companion.control.session import EpisodeRecord
+from companion.errors import CameraError, CheckpointError, ConfigError
 from companion.learning.dataset import load_csv
+from companion.link.dialect import ARDUPILOT, PX4
 from companion.simulator import SitlProcess
+from companion.vision.camera import open_camera
 
 
 def test_a_missing_checkpoint_fails_before_making_the_run_folder(tmp_path: Path) -> None:
@@ -91,3 +101,35 @@ def test_a_resumed_run_folder_continues_from_its_newest_policy(tmp_path: Path) -
     save_checkpoint(tmp_path / "checkpoints" / "episode_001.npz", snap, cfg, dataset_size=10, episode=1, condition="demo")
     resumed = _resume_policy(tmp_path, 3)
     assert resumed is not None and resumed.version == 42
+
+
+def test_camera_none_is_a_test_mode_without_a_camera(caplog: pytest.LogCaptureFixture) -> None:
+    cfg = CompanionConfig()
+    cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": "none"})})
+    with caplog.at_level("WARNING"):
+        assert open_run_camera(cfg, None, None) is None  # type: ignore[arg-type]  # the link is never asked
+    assert "not visible" in caplog.text
+
+
+def test_auto_camera_without_a_stream_says_how_to_fly_without_one() -> None:
+    with pytest.raises(CameraError, match='"none"'):
+        open_camera("auto", auto_uri=None)
+
+
+def _record(episode: int, success: bool | None) -> EpisodeRecord:
+    return EpisodeRecord(episode, "demonstration", 0, 10, 10, 0, 0.0, (), "touchdown", success, 0.1, None, None, 10,
+                         1.0, 1.0)
+
+
+def test_the_summary_says_unknown_where_success_cannot_be_judged(tmp_path: Path) -> None:
+    unknown = RunResult(tmp_path, [_record(0, None), _record(1, None)]).summary()
+    assert unknown["successes"] is None and unknown["success_rate"] is None and unknown["success_unknown"] == 2
+    mixed = RunResult(tmp_path, [_record(0, True), _record(1, False), _record(2, None)]).summary()
+    assert mixed["successes"] == 1 and mixed["success_rate"] == 0.5 and mixed["success_unknown"] == 1
+
+
+def test_lockstep_needs_the_dialects_frame_marker() -> None:
+    check_lockstep(PX4, True)
+    check_lockstep(ARDUPILOT, False)
+    with pytest.raises(ConfigError, match="lockstep needs a frame marker"):
+        check_lockstep(ARDUPILOT, True)

@@ -22,11 +22,13 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import SessionConfig
 from companion.control.arbiter import Arbiter, Phase
 from companion.control.safety import Geofence, SetpointLimiter
+from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
 from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
 from companion.learning.snapshot import PolicySnapshot
 from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.dialect import Dialect, dialect_for
 from companion.link.setpoints import VelocitySetpoint
 from companion.simulator import SimulatorClient
 from companion.vision.observer import Observer
@@ -114,6 +116,7 @@ class EpisodeParts:
     simulator: SimulatorClient | None = None
     runner: PolicyRunner | None = None
     dataset: HumanDataset | None = None
+    dialect: Dialect | None = None  # None: from the vehicle's HEARTBEAT
 
 
 class EpisodeRunner:
@@ -128,6 +131,21 @@ class EpisodeRunner:
         self._warned_learner = False
         self._tick_start_s: float | None = None
         self.step_latencies_s: list[float] = []
+        self._dialect = parts.dialect
+
+    @property
+    def dialect(self) -> Dialect:
+        """How this vehicle's autopilot does offboard, hold, land and take-off."""
+        if self._dialect is None:
+            snap = self.p.link.state()
+            if snap is None:
+                raise LinkError("no HEARTBEAT from the vehicle yet: cannot tell its autopilot")
+            self._dialect = dialect_for(snap.autopilot)
+        return self._dialect
+
+    def leave_safe(self) -> str:
+        """The configured end-of-run state (land or hold), after a run or a failed episode."""
+        return leave_safe(self.p.link, self.dialect, self.p.cfg.end_of_run)
 
     # ----- frames ----------------------------------------------------------------------------
     def _next_snapshot(self) -> VehicleSnapshot | None:
@@ -168,17 +186,23 @@ class EpisodeRunner:
         return None
 
     def _ensure_offboard(self, snap: VehicleSnapshot) -> VehicleSnapshot:
-        """Stream, then switch to OFFBOARD. The switch is asked before this frame's answer, so in
-        lockstep it lands in a known frame (the heartbeat may show it only later)."""
-        if snap.mode == "OFFBOARD":
+        """Enter the dialect's offboard mode. PX4: stream, then switch (OFFBOARD needs a fresh
+        stream); ArduPilot: switch to GUIDED first (it is armed in it), then stream. The switch is
+        asked before this frame's answer, so in lockstep it lands in a known frame."""
+        d = self.dialect
+        if d.is_offboard(snap.mode):
             return snap
+        if not d.stream_before_offboard:
+            when_ready(lambda: self.p.link.set_mode(d.offboard_mode), f"enter {d.offboard_mode}",
+                       self.p.cfg.arm_timeout_s)
         if not snap.armed:
-            self.p.link.arm()
+            arm_when_ready(self.p.link, self.p.cfg.arm_timeout_s)
         self._send(HOLD)
         nxt = self._next_snapshot()
         if nxt is None:
-            raise LinkError("lost the vehicle while entering OFFBOARD")
-        self.p.link.set_mode("OFFBOARD")  # raises CommandRejected with the reason if refused
+            raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
+        if d.stream_before_offboard:
+            self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
         return nxt
 
     # ----- episode start -----------------------------------------------------------------------
@@ -214,8 +238,7 @@ class EpisodeRunner:
         if snap is None:
             raise LinkError("no telemetry: cannot start the episode")
         if not snap.in_air:
-            self.p.link.arm()
-            self.p.link.takeoff(cfg.takeoff_alt_m)
+            take_off(self.p.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
             for _ in range(int(30 * cfg.control_rate_hz)):
                 snap = self._next_snapshot()
                 if snap is not None and snap.in_air and -snap.position_ned_m[2] > 0.8 * cfg.takeoff_alt_m:
@@ -230,8 +253,8 @@ class EpisodeRunner:
             echo = self._frame_ms if self.p.lockstep else None
             north, east, down = (float(v) for v in target)
             self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
-            if i == 2 and snap.mode != "OFFBOARD":
-                self.p.link.set_mode("OFFBOARD")
+            if i == 2 and not self.dialect.is_offboard(snap.mode):
+                self.p.link.set_mode(self.dialect.offboard_mode)
             err = float(np.linalg.norm(np.asarray(snap.position_ned_m) - target))
             speed = float(np.linalg.norm(snap.velocity_ned_m_s))
             if i > 3 and err < self.p.cfg.start_tolerance_m and speed < 0.3:
@@ -260,6 +283,7 @@ class EpisodeRunner:
             first, notes = self._start(seed)
         except ColError as exc:  # refused reset, no OFFBOARD, lost vehicle: this episode only
             log.error("episode %d could not start: %s", episode, exc)
+            self._leave_safe_after_error()
             return self._record(episode, phase, seed, 0, "error", None, None, 0, wall0, [f"start failed: {exc}"])
         t0_ms = first.time_boot_ms
         snap: VehicleSnapshot | None = first
@@ -270,7 +294,18 @@ class EpisodeRunner:
             log.error("episode %d ended by an error: %s", episode, exc)
             outcome = "error"
             notes.append(f"error: {exc}")
+            self._leave_safe_after_error()
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
+
+    def _leave_safe_after_error(self) -> None:
+        """On a vehicle that flies to its starts; a simulator's reset takes the vehicle over anyway
+        (and lockstep experiments stay exactly as they were)."""
+        if self.p.simulator is not None:
+            return
+        try:
+            self.leave_safe()
+        except ColError as exc:  # no heartbeat yet: nothing is flying on our account
+            log.error("could not leave the vehicle safe: %s", exc)
 
     def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
              t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
@@ -329,7 +364,7 @@ class EpisodeRunner:
             log.warning("geofence: %s; holding and ending the episode", fence.reason)
             self._send(HOLD)
             try:
-                self.p.link.set_mode("AUTO.LOITER")
+                self.p.link.set_mode(self.dialect.hold_mode)
             except ColError as exc:
                 log.error("could not switch to hold: %s", exc)
             return "fence", None

@@ -333,4 +333,4 @@ def inprocess_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, ru
         stack.callback(link.close)
         link.connect(timeout_s=30.0)
         camera = InProcessCamera(sitl) if sitl.camera is not None else None
-        yield Vehicle(link, InProcessSimulator(sitl, link.io), camera)
+        yield Vehicle(link, InProcessSimulator(sitl, link.io), camera, owned=True)

@@ -32,7 +32,7 @@ class VehicleSnapshot:
     system_id: int
     autopilot: str  # "PX4", "ARDUPILOTMEGA", ...
     armed: bool
-    mode: str  # PX4 name, e.g. "OFFBOARD", "AUTO.LOITER"
+    mode: str  # the autopilot's name: PX4 "OFFBOARD", "AUTO.LOITER"; ArduPilot "GUIDED", "BRAKE"
     landed_state: str  # one of LANDED_STATES
     position_ned_m: Vec3
     velocity_ned_m_s: Vec3
@@ -138,7 +138,9 @@ class VehicleLink(ABC):
 
     @abstractmethod
     def set_mode(self, name: str) -> None:
-        """Switch flight mode by PX4 name ("OFFBOARD", "AUTO.LOITER", "HOLD", ...)."""
+        """Switch flight mode by the autopilot's name (PX4: "OFFBOARD", "AUTO.LOITER", "HOLD";
+        ArduPilot: "GUIDED", "BRAKE", "LAND"); which to use is the dialect's (link/dialect.py).
+        A name the autopilot lacks: ``CommandRejected`` with origin "companion", nothing sent."""
 
     @abstractmethod
     def takeoff(self, alt_m: float) -> None:

@@ -28,14 +28,14 @@ from companion.link.base import (
     VehicleSnapshot,
 )
 from companion.link.connection import parse_connection
+from companion.link.dialect import PX4, Dialect, dialect_for
 from companion.link.mavlink_io import MavlinkIO
 from companion.link.setpoints import VelocitySetpoint
 from companion.link.waiters import Waiter
 
 log = logging.getLogger(__name__)
 
-BODY_VELOCITY_TYPE_MASK = 0x5C7  # use vx, vy, vz, yaw rate; ignore position, acceleration, yaw
-POSITION_TYPE_MASK = 0x9F8  # use x, y, z, yaw; ignore velocity, acceleration, yaw rate
+STATUSTEXT_GRACE_S = 0.3  # after a refusal: how long the vehicle's reasons may trail its ACK
 UINT32_MAX = 2**32 - 1
 NAN = float("nan")  # MAVLink's "not set / use current" in command parameters
 # streams a PX4-like vehicle sends by default that no part of the companion reads (HEARTBEAT,
@@ -112,9 +112,13 @@ class MavlinkLink(VehicleLink):
         return self._io.wait(newer, timeout_s, on_loss=lost)
 
     # ================================================================ commands
+    def dialect(self) -> Dialect:
+        """The vehicle's autopilot dialect (PX4 until a heartbeat says otherwise)."""
+        snapshot = self._io.snapshot
+        return PX4 if snapshot is None else dialect_for(snapshot.autopilot)
+
     def arm(self) -> None:
-        self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1.0], "arm",
-                      "read the vehicle's STATUSTEXT pre-arm messages, fix them and retry")  # fmt: skip
+        self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1.0], "arm", self.dialect().arm_hint)
 
     def disarm(self) -> None:
         self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [0.0], "disarm",
@@ -130,8 +134,9 @@ class MavlinkLink(VehicleLink):
             params = [float(base), float(main), float(sub)]
         else:
             params = [float(base), float(self._other_mode_number(name))]
-        self._command(mavlink.MAV_CMD_DO_SET_MODE, params, f"set_mode({name!r})",
-                      "OFFBOARD needs a setpoint stream first; AUTO modes need a position estimate")  # fmt: skip
+        hint = ("OFFBOARD needs a setpoint stream first; AUTO modes need a position estimate"
+                if snapshot.autopilot == "PX4" else "read the vehicle's messages for why")  # fmt: skip
+        self._command(mavlink.MAV_CMD_DO_SET_MODE, params, f"set_mode({name!r})", hint)
 
     def _other_mode_number(self, name: str) -> int:
         from pymavlink import mavutil
@@ -139,7 +144,8 @@ class MavlinkLink(VehicleLink):
         mapping = mavutil.mode_mapping_byname(self._io.vehicle_type) or {}
         if name.upper() not in mapping:
             raise CommandRejected(
-                f"set_mode({name!r})", "UNSUPPORTED", f"this autopilot knows {sorted(mapping)}"
+                f"set_mode({name!r})", "UNSUPPORTED", f"this autopilot knows {sorted(mapping)}",
+                origin="companion",
             )
         return int(mapping[name.upper()])
 
@@ -155,8 +161,7 @@ class MavlinkLink(VehicleLink):
             params = [-1.0, 0.0, 0.0, NAN, NAN, NAN, NAN]
         else:
             params = [0.0, 0.0, 0.0, NAN, 0.0, 0.0, float(alt_m)]
-        self._command(mavlink.MAV_CMD_NAV_TAKEOFF, params, "takeoff",
-                      "arm first, and make sure the vehicle has a position estimate")  # fmt: skip
+        self._command(mavlink.MAV_CMD_NAV_TAKEOFF, params, "takeoff", self.dialect().takeoff_hint)
 
     def land(self) -> None:
         self._command(mavlink.MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, NAN, NAN, NAN, NAN], "land")
@@ -260,6 +265,7 @@ class MavlinkLink(VehicleLink):
             waiter = self._io.waiters.add(
                 lambda m: m.get_type() == "COMMAND_ACK" and m.command == command
             )
+            texts = self._io.waiters.add(_is_complaint)
             try:
                 for attempt in range(attempts):
                     confirmation = min(attempt, 255)
@@ -268,17 +274,18 @@ class MavlinkLink(VehicleLink):
                             tsys, tcomp, command, confirmation, *padded
                         )
                     )
-                    if self._await_ack(waiter, name, hint):
+                    if self._await_ack(waiter, name, hint, texts):
                         return
                     self._require_alive()
             finally:
                 self._io.waiters.remove(waiter)
+                self._io.waiters.remove(texts)
         raise LinkTimeout(
             f"{name}: no COMMAND_ACK after {attempts} attempt(s) of {self.cfg.command_timeout_s} s "
             f"({command_name(command)}); the vehicle may not support it, or the link drops replies"
         )
 
-    def _await_ack(self, waiter: Waiter, name: str, hint: str) -> bool:
+    def _await_ack(self, waiter: Waiter, name: str, hint: str, texts: Waiter) -> bool:
         deadline = self._clock() + self.cfg.command_timeout_s
         while (remaining := deadline - self._clock()) > 0:
             ack = waiter.get(remaining)
@@ -289,8 +296,19 @@ class MavlinkLink(VehicleLink):
                 continue
             if ack.result == mavlink.MAV_RESULT_ACCEPTED:
                 return True
-            raise CommandRejected(name, result_name(ack.result), hint)
+            raise CommandRejected(name, result_name(ack.result), hint, reasons=self._reasons(texts))
         return False
+
+    def _reasons(self, texts: Waiter) -> tuple[str, ...]:
+        """The vehicle's STATUSTEXT complaints around a refusal (before its ACK or just after)."""
+        found: list[str] = []
+        deadline = self._clock() + STATUSTEXT_GRACE_S
+        while (remaining := deadline - self._clock()) > 0:
+            msg = texts.get(min(remaining, 0.1))
+            if msg is None:
+                break
+            found.append(str(msg.text).rstrip("\x00").strip())
+        return tuple(dict.fromkeys(t for t in found if t))
 
     def _set_param(self, name: str, value: float) -> None:
         """PARAM_SET, waiting briefly for the PARAM_VALUE echo (logged if it never comes)."""
@@ -314,8 +332,9 @@ class MavlinkLink(VehicleLink):
     ) -> None:
         self._limits.check_velocity(sp)
         stamp = _stamp(self._require_alive(), echo_time_boot_ms)
+        d = self.dialect()
         self._send_target(
-            stamp, mavlink.MAV_FRAME_BODY_NED, BODY_VELOCITY_TYPE_MASK,
+            stamp, d.body_frame, d.body_type_mask,
             (0.0, 0.0, 0.0), (sp.forward_m_s, sp.right_m_s, sp.down_m_s), 0.0, sp.yaw_rate_rad_s,
         )  # fmt: skip
 
@@ -326,7 +345,8 @@ class MavlinkLink(VehicleLink):
         self._limits.check_position(north_m, east_m, down_m, yaw_rad)
         stamp = _stamp(self._require_alive(), echo_time_boot_ms)
         position = (float(north_m), float(east_m), float(down_m))
-        self._send_target(stamp, mavlink.MAV_FRAME_LOCAL_NED, POSITION_TYPE_MASK,
+        d = self.dialect()
+        self._send_target(stamp, d.position_frame, d.position_type_mask,
                           position, (0.0, 0.0, 0.0), float(yaw_rad), 0.0)  # fmt: skip
 
     def _send_target(
@@ -364,6 +384,11 @@ class MavlinkLink(VehicleLink):
             f"{self.cfg.connection}; the link keeps listening and resumes by itself - hold, "
             "check the radio or cable, and retry when link_alive() is True"
         )
+
+
+def _is_complaint(msg: Any) -> bool:
+    """A STATUSTEXT of severity WARNING or worse (ArduPilot's "PreArm: ..." are CRITICAL)."""
+    return msg.get_type() == "STATUSTEXT" and msg.severity <= mavlink.MAV_SEVERITY_WARNING
 
 
 def message_id(message_name: str) -> int:

@@ -49,6 +49,7 @@ def canonical_name(name: str) -> str:
             f"set_mode({name!r})",
             "UNSUPPORTED",
             f"unknown PX4 mode; use one of {sorted(PX4_MODES)} or {sorted(ALIASES)}",
+            origin="companion",
         )
     return upper
 

@@ -295,7 +295,8 @@ def open_camera(spec: str, *, auto_uri: str | None = None, open_timeout_s: float
         if not auto_uri:
             raise CameraError(
                 "camera = \"auto\" but the vehicle advertised no video stream; set [companion.perception] "
-                "camera to colf://host:port, a device index, a file or a URL"
+                "camera (or --camera) to colf://host:port, a device index, a file or a URL, or to \"none\" "
+                "to fly a test with the pad reported as not visible"
             )
         spec = auto_uri
     source: CameraSource

@@ -1,0 +1,98 @@
+"""The vehicle-side sequences a session runs around its episodes: arming (waiting while the
+vehicle is still booting), taking off the way its autopilot wants, and leaving it safe.
+
+Each takes the link and the vehicle's :class:`~companion.link.dialect.Dialect`; none names a
+flight mode itself. A vehicle that refuses says why in STATUSTEXT: those reasons are shown
+live while waiting, and carried in the error when waiting is over.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections.abc import Callable
+
+from companion.errors import ColError, CommandRejected
+from companion.link.base import VehicleLink
+from companion.link.dialect import Dialect, EndOfRun
+
+log = logging.getLogger(__name__)
+ARM_RETRY_S = 1.0
+
+
+def when_ready(action: Callable[[], None], what: str, timeout_s: float, retry_s: float = ARM_RETRY_S,
+               sleep: Callable[[float], None] = time.sleep,
+               clock: Callable[[], float] = time.monotonic) -> None:
+    """Run ``action`` (arm, or enter the mode armed in), retrying for up to ``timeout_s`` while
+    the vehicle refuses (an EKF still settling after boot) and logging each new reason it gives.
+    A refusal by the companion is not retried."""
+    start = clock()
+    shown: list[str] = []
+    while True:
+        try:
+            action()
+            if shown:
+                log.warning("%s accepted after %.0f s of waiting", what, clock() - start)
+            return
+        except CommandRejected as exc:
+            if exc.origin != "vehicle":
+                raise
+            waited = clock() - start
+            for reason in exc.reasons or (f"{exc.command} refused: {exc.result}",):
+                if reason not in shown:
+                    shown.append(reason)
+                    log.warning("waiting for the vehicle to %s (%.0f s of %.0f): %s", what, waited, timeout_s, reason)
+            if waited + retry_s > timeout_s:
+                raise CommandRejected(
+                    exc.command, exc.result,
+                    f"still refused after {waited:.0f} s of retrying (companion.session.arm_timeout_s); "
+                    "fix what the vehicle says, or wait longer",
+                    reasons=tuple(shown),
+                ) from exc
+            sleep(retry_s)
+
+
+def arm_when_ready(link: VehicleLink, timeout_s: float) -> None:
+    """Arm, waiting up to ``timeout_s`` while the vehicle is not armable yet."""
+    when_ready(link.arm, "arm", timeout_s)
+
+
+def take_off(link: VehicleLink, dialect: Dialect, alt_m: float, arm_timeout_s: float) -> None:
+    """From the ground to climbing towards ``alt_m``: the dialect's steps (ArduPilot: GUIDED,
+    arm, NAV_TAKEOFF; PX4: arm, NAV_TAKEOFF). The caller waits for the altitude."""
+    for step in dialect.takeoff_steps(alt_m):
+        if step.kind == "mode":
+            when_ready(functools.partial(link.set_mode, step.mode), f"enter {step.mode}", arm_timeout_s)
+        elif step.kind == "arm":
+            arm_when_ready(link, arm_timeout_s)
+        else:
+            link.takeoff(step.alt_m)
+
+
+def leave_safe(link: VehicleLink, dialect: Dialect, policy: EndOfRun) -> str:
+    """Put the vehicle in a state that needs nobody: land (or hold) if flying, disarm if it
+    sits armed on the ground. Never raises (it runs while unwinding); returns what it did."""
+    if not link.link_alive():
+        log.error("cannot leave the vehicle safe: the link is lost; its own failsafe acts")
+        return "link lost"
+    snap = link.state()
+    if snap is None or not snap.armed:
+        return "disarmed"
+    if snap.landed_state == "ON_GROUND":
+        try:
+            link.disarm()
+            return "disarmed"
+        except CommandRejected as exc:  # it says it is not on the ground after all: land or hold
+            log.warning("disarm refused (%s); %s instead", exc, policy)
+    mode = dialect.end_state_mode(policy)
+    try:
+        if policy == "land" and not dialect.land_by_mode:
+            link.land()
+        else:
+            link.set_mode(mode)
+    except ColError as exc:
+        log.error("could not leave the vehicle safe (%s): %s; take over", policy, exc)
+        return f"failed: {exc}"
+    log.info("vehicle left in %s (%s)", mode, policy)
+    return mode
