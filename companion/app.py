@@ -35,6 +35,7 @@ from companion.learning.policy import PolicySnapshot
 from companion.learning.runners import make_runner
 from companion.link import open_link
 from companion.link.base import VehicleLink
+from companion.link.signing import read_key
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
@@ -167,8 +168,11 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         yield opts.connection, None
         return
     port = free_udp_port()
+    key_file = cfg.link.signing_key_file  # our SITL gets our key: signing required on both sides
+    if key_file:
+        read_key(key_file)  # a bad key file is reported before any process starts
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed)
+                      seed=opts.seed, extra_args=["--signing-key", key_file] if key_file else None)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:

@@ -14,6 +14,7 @@ from typing import Annotated
 import typer
 
 from colcommon.errors import ConfigError
+from colcommon.signing import read_key
 from sitl.config import SitlConfig, load_sitl_config
 
 app = typer.Typer(add_completion=False, help=__doc__)
@@ -91,6 +92,7 @@ def run(
     duration: Annotated[float | None, typer.Option(help="stop after this much simulation time (s)")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
     exit_with_parent: Annotated[bool, typer.Option("--exit-with-parent", help="stop when the process that started it dies (Linux)")] = False,
+    signing_key: Annotated[Path | None, typer.Option("--signing-key", help="MAVLink 2 signing key file (64 hex digits): sign everything, obey only messages signed with it")] = None,
 ) -> None:
     """Start the SITL. Prints one line `READY {json}` with the bound ports once it listens."""
     if exit_with_parent:
@@ -98,13 +100,14 @@ def run(
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
     try:
         cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera)
+        key = read_key(signing_key) if signing_key is not None else None
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     from sitl.server import SitlServer
 
     try:
-        server = SitlServer(cfg)
+        server = SitlServer(cfg, signing_key=key)
     except OSError as exc:
         typer.echo(f"error: cannot open the SITL's sockets ({exc}); is another SITL running? choose other ports", err=True)
         raise typer.Exit(1) from None
