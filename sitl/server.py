@@ -27,6 +27,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, parse_request
+from sitl.exposure import authorised, check_exposure
 from sitl.handler import CameraInfo, MessageHandler
 from sitl.signing import SitlSigning
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
@@ -223,9 +224,13 @@ def _listener(host: str, port: int) -> socket.socket:
 class SitlServer:
     """Runs a SimVehicle behind MAVLink, camera and control-surface sockets."""
 
-    def __init__(self, cfg: SitlConfig, frame_sink: FrameSink | None = None, signing_key: bytes | None = None) -> None:
+    def __init__(self, cfg: SitlConfig, frame_sink: FrameSink | None = None, signing_key: bytes | None = None,
+                 allow_remote: bool = False, control_token: str | None = None) -> None:
         """``frame_sink``: where camera frames go instead of the TCP stream (a reader in this process);
-        ``signing_key``: MAVLink 2 signing required with this key (sitl/signing.py)."""
+        ``signing_key``: MAVLink 2 signing required with this key (sitl/signing.py); a host other
+        than loopback needs ``allow_remote`` and a ``control_token`` (sitl/exposure.py)."""
+        check_exposure(cfg.network.host, allow_remote, control_token)
+        self.control_token = control_token
         self.cfg = cfg
         self.signing = SitlSigning(signing_key, cfg.network.system_id)
         self._frame_sink = frame_sink
@@ -530,7 +535,10 @@ class SitlServer:
         cc.sock.close()
 
     def _reply_control(self, cc: ControlClient, line: bytes) -> None:
-        reply = self.control_reply(line)
+        if authorised(line, self.control_token):
+            reply = self.control_reply(line)
+        else:
+            reply = {"ok": False, "error": "unauthorised: this control surface needs its \"token\""}
         try:  # bounded: a client that never reads its replies must not stall the simulation
             cc.sock.settimeout(CONTROL_REPLY_TIMEOUT_S)
             cc.sock.sendall((json.dumps(reply) + "\n").encode())
