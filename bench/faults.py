@@ -154,7 +154,7 @@ def unsigned_obeyed(key: bytes, attempts: int) -> dict[str, Any]:
         ]
         sent, obeyed = 0, 0
         before = sim.truth()
-        for k in range(attempts):
+        for _ in range(attempts):
             for codec in (bad, wrong):
                 for msg in messages:
                     data = bytes(msg.pack(codec))
