@@ -128,9 +128,9 @@ class _FakeAutopilot:
 
 def fuzz_link(count: int, seed: int = 0, probe_timeout_s: float = 5.0) -> tuple[FuzzReport, dict[str, Any]]:
     """Fuzz the companion's pymavlink link (its I/O thread) in this process."""
-    from companion.app import free_udp_port
-
-    port = free_udp_port()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
     link = MavlinkLink(LinkConfig(connection=f"udpin:127.0.0.1:{port}", request_rates_on_connect=False,
                                   heartbeat_timeout_s=10.0))
     vehicle = _FakeAutopilot(port)
