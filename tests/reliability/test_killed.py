@@ -85,3 +85,19 @@ def test_an_unwritable_run_folder_is_a_clear_error_before_anything_starts(tmp_pa
     code = col.proc.wait(60)
     assert code == 2 and any("cannot write to the run folder" in line for _, line in col.stderr), col.stderr
     assert children(col.proc.pid) == [] and time.monotonic() - t0 < 60
+
+
+def test_a_full_disk_is_reported_with_what_to_do(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+    import os
+
+    from companion.errors import ConfigError
+    from companion.run_folder import prepare_run_dir
+
+    def full(_fd: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(ConfigError, match="free some disk space"):
+        prepare_run_dir(tmp_path / "run")
+    assert [p.name for p in (tmp_path / "run").iterdir()] == ["checkpoints"]  # the probe is gone

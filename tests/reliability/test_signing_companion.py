@@ -86,3 +86,10 @@ def test_bad_key_files_are_explained(tmp_path: Path) -> None:
     assert parse_key(KEY_HEX.encode()) == bytes.fromhex(KEY_HEX)
     with pytest.raises(ConfigError, match="64 hex digits"):
         _link(str(write_key(tmp_path / "short.hex", "abcd")), free_port())
+
+
+def test_the_mavsdk_link_refuses_a_signing_key_instead_of_flying_unsigned() -> None:
+    from companion.link import open_link
+
+    with pytest.raises(ConfigError, match="does not sign"):
+        open_link(LinkConfig(signing_key_file="k.hex"), "mavsdk")
