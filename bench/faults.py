@@ -38,6 +38,8 @@ from companion.testing.fuzz_targets import fuzz_link, fuzz_sitl  # noqa: E402
 from companion.testing.kill import ColRun, samples_lost, sigkill, wait_rows  # noqa: E402
 from companion.testing.lossy_proxy import LinkFaults, LossyProxy  # noqa: E402
 
+SITL_START_S = 180.0  # a loaded machine starts a SITL slowly
+
 
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -61,7 +63,8 @@ def fuzz(packets: int, seed: int) -> dict[str, Any]:
         t0 = time.monotonic()
         report, after = target(packets, seed=seed)
         out[name] = {"packets": report.packets, "by_kind": report.by_kind, "probes": report.probes,
-                     "crashes": report.crashes, "hangs": report.hangs, "notes": report.notes[:5],
+                     "crashes": report.crashes, "hangs": report.hangs, "slow_probes": report.slow,
+                     "notes": report.notes[:5],
                      "wall_s": round(time.monotonic() - t0, 1),
                      **{k: v for k, v in after.items() if k != "stats"}}
         print(f"fuzz {name}: {json.dumps(out[name])}", file=sys.stderr, flush=True)
@@ -75,7 +78,7 @@ def expert_through_proxy(loss: float, delay_s: float, episodes: int, seed: int) 
     port = free_udp_port()
     faults = LinkFaults(loss=loss, delay_s=delay_s / 2)  # half the latency each way
     with LossyProxy(port, to_companion=faults, to_vehicle=faults, seed=seed) as proxy, \
-            running_sitl(proxy.vehicle_port, clock="realtime", seed=seed) as sitl, \
+            running_sitl(proxy.vehicle_port, clock="realtime", seed=seed, timeout_s=SITL_START_S) as sitl, \
             tempfile.TemporaryDirectory(prefix="col-loss-") as work:
         opts = RunOptions(connection=f"udpin:127.0.0.1:{port}", simulator=f"127.0.0.1:{sitl.control_port}",
                           pilot="expert", condition="demo", episodes=episodes, run_dir=Path(work) / "run",
@@ -95,7 +98,7 @@ def expert_through_proxy(loss: float, delay_s: float, episodes: int, seed: int) 
 # ----- killed companion -------------------------------------------------------------------------
 def kill_companion(rows_before_kill: int) -> dict[str, Any]:
     port = free_udp_port()
-    with running_sitl(port, clock="lockstep") as sitl, tempfile.TemporaryDirectory(prefix="col-kill-") as work:
+    with running_sitl(port, clock="lockstep", timeout_s=SITL_START_S) as sitl, tempfile.TemporaryDirectory(prefix="col-kill-") as work:
         sim = SimulatorClient("127.0.0.1", sitl.control_port)
         run_dir = Path(work) / "run"
         col = ColRun.start(["--connect", f"udpin:127.0.0.1:{port}", "--simulator", f"127.0.0.1:{sitl.control_port}",
@@ -129,7 +132,7 @@ def unsigned_obeyed(key: bytes, attempts: int) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as work:
         key_file = Path(work) / "k"
         key_file.write_text(key.hex())
-        sitl = start_sitl(owner.getsockname()[1], clock="realtime", camera=False,
+        sitl = start_sitl(owner.getsockname()[1], clock="realtime", camera=False, timeout_s=SITL_START_S,
                           extra_args=["--signing-key", str(key_file)])
     sim = SimulatorClient("127.0.0.1", sitl.control_port)
     intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -174,6 +177,22 @@ def unsigned_obeyed(key: bytes, attempts: int) -> dict[str, Any]:
         intruder.close()
 
 
+class _State:
+    """Finished sections, kept in a JSON file so that a stopped run resumes where it was."""
+
+    def __init__(self, path: Path | None) -> None:
+        self.path = path
+        self.data: dict[str, Any] = json.loads(path.read_text()) if path is not None and path.exists() else {}
+
+    def section(self, name: str, measure: Any) -> Any:
+        if name not in self.data:
+            self.data[name] = measure()
+            print(f"{name}: {json.dumps(self.data[name])}", file=sys.stderr, flush=True)
+            if self.path is not None:
+                self.path.write_text(json.dumps(self.data))
+        return self.data[name]
+
+
 def long_result(path: Path | None) -> dict[str, Any] | None:
     if path is None or not path.exists():
         return None
@@ -190,6 +209,8 @@ def main() -> None:
     ap.add_argument("--sweep-episodes", type=int, default=4)
     ap.add_argument("--long-result", type=Path, help="output of bench/long_run.py (its last JSON line)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--state", type=Path, help="keep each finished section here and reuse it when run again "
+                    "(a run stopped by a loaded machine resumes); default: none")
     ap.add_argument("--merge", type=Path, help="instead of measuring: this earlier output with --long-result's figures filled in")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
@@ -201,17 +222,17 @@ def main() -> None:
         return
     if args.quick:
         args.fuzz_packets, args.loss_episodes = 3000, 2
-    machine_ref = machine_ref_rt()
-    fz = fuzz(args.fuzz_packets, args.seed)
-    signing = unsigned_obeyed(bytes(range(100, 132)), 5 if args.quick else 20)
-    print(f"signing: {json.dumps(signing)}", file=sys.stderr, flush=True)
-    kill = kill_companion(30)
-    print(f"kill: {json.dumps(kill)}", file=sys.stderr, flush=True)
-    at10 = expert_through_proxy(0.10, 0.0, args.loss_episodes, args.seed)
+    state = _State(args.state)
+    machine_ref = state.section("machine_ref_rt", machine_ref_rt)
+    fz = state.section("fuzz", lambda: fuzz(args.fuzz_packets, args.seed))
+    signing = state.section("signing", lambda: unsigned_obeyed(bytes(range(100, 132)), 5 if args.quick else 20))
+    kill = state.section("kill", lambda: kill_companion(30))
+    at10 = state.section("loss_10pct", lambda: expert_through_proxy(0.10, 0.0, args.loss_episodes, args.seed))
     sweep = [at10]
     if args.sweep:
         for loss, delay in ((0.0, 0.0), (0.05, 0.0), (0.30, 0.0), (0.0, 0.1), (0.0, 0.2), (0.10, 0.2)):
-            sweep.append(expert_through_proxy(loss, delay, args.sweep_episodes, args.seed))
+            sweep.append(state.section(f"loss_{loss}_{delay}", lambda loss=loss, delay=delay: expert_through_proxy(
+                loss, delay, args.sweep_episodes, args.seed)))
     long = long_result(args.long_result)
     print(json.dumps({
         "fuzz_packets": min(v["packets"] for v in fz.values()),

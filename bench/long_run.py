@@ -7,6 +7,7 @@ The dataset grows with every demonstration (kept in memory for training, as desi
 memory growth it explains is reported beside the raw figure.
 
     nice -n 10 python bench/long_run.py --episodes 1000 --progress long_run.jsonl
+    python bench/long_run.py --summarise long_run.jsonl --warmup 50   # figures of a run cut short
 """
 
 from __future__ import annotations
@@ -69,7 +70,12 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--warmup", type=int, default=100)
     ap.add_argument("--progress", type=Path, default=Path("long_run.jsonl"))
+    ap.add_argument("--summarise", type=Path, help="instead of running: summarise this progress file (a run cut short)")
     args = ap.parse_args()
+    if args.summarise is not None:
+        rows = [json.loads(x) for x in args.summarise.read_text().splitlines() if x.strip()]
+        print(json.dumps({**summarise(rows, args.warmup), "warmup": args.warmup, "cut_short": True}))
+        return
     machine_ref = machine_ref_rt()
     cfg = load_companion_config(None)
     rows: list[dict] = []

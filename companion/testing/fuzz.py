@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import common as M
 
 EXTREME_FLOATS = (math.nan, math.inf, -math.inf, 3.4e38, -3.4e38, 1e-45, 0.0, -0.0, 1e9, -1e9)
 KINDS = ("random", "truncated", "bitflip", "extreme", "reordered")
+HANG_PROBES = 12  # a target silent for this many probe timeouts in a row has hung
 CommandList = list[tuple[int, ...]]
 
 # commands whose intact form would legitimately change what the vehicle does: only corrupted
@@ -39,7 +40,8 @@ class FuzzReport:
     packets: int = 0
     by_kind: dict[str, int] = field(default_factory=lambda: dict.fromkeys(KINDS, 0))
     probes: int = 0
-    hangs: int = 0  # probes not answered within their timeout
+    slow: int = 0  # probes answered only after their first timeout (a loaded machine)
+    hangs: int = 0  # probes still unanswered after HANG_PROBES timeouts: the target stopped
     crashes: int = 0  # the target died or reported an internal error
     notes: list[str] = field(default_factory=list)
 
@@ -147,8 +149,11 @@ def fuzz_udp(
 def _check(report: FuzzReport, probe: Probe, alive: Callable[[], bool]) -> bool:
     report.probes += 1
     if not probe():
-        report.hangs += 1
-        report.notes.append(f"probe {report.probes} unanswered after {report.packets} packets")
+        if any(probe() for _ in range(HANG_PROBES - 1)):
+            report.slow += 1
+        else:
+            report.hangs += 1
+            report.notes.append(f"probe {report.probes} unanswered after {report.packets} packets")
     if not alive():
         report.crashes += 1
         report.notes.append(f"target gone after {report.packets} packets")
