@@ -25,10 +25,10 @@ from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRecord, EpisodeRunner
-from companion.errors import ColError, ConfigError
+from companion.errors import ColError, ConfigError, SimulatorError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
-from companion.learning.dataset import HumanDataset
+from companion.learning.dataset import HumanDataset, load_csv
 from companion.learning.fit import Fit, fit_of
 from companion.learning.learner import Learner
 from companion.learning.runners import make_runner
@@ -36,6 +36,8 @@ from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect, dialect_for
+from companion.link.signing import read_key
+from companion.run_folder import prepare_run_dir
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
@@ -174,8 +176,11 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         yield opts.connection, None
         return
     port = free_udp_port()
+    key_file = cfg.link.signing_key_file  # our SITL gets our key: signing required on both sides
+    if key_file:
+        read_key(key_file)  # a bad key file is reported before any process starts
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed)
+                      seed=opts.seed, extra_args=["--signing-key", key_file] if key_file else None)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:
@@ -229,6 +234,7 @@ class Vehicle:
     simulator: SimulatorClient | None
     camera: CameraSource | None
     owned: bool = False  # a SITL started for this run: stopped after it, nothing to leave safe
+    sitl_exit_code: Callable[[], int | None] = lambda: None  # our SITL process's, once it has exited
 
 
 VehicleOpener = Callable[[CompanionConfig, RunOptions, bool, Path], AbstractContextManager[Vehicle]]
@@ -251,7 +257,8 @@ def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir
         camera = open_run_camera(cfg, sitl, link)
         if camera is not None:
             stack.callback(camera.close)
-        yield Vehicle(link, simulator, camera, owned=sitl is not None)
+        yield Vehicle(link, simulator, camera, owned=sitl is not None,
+                      sitl_exit_code=(lambda: sitl.proc.poll()) if sitl is not None else (lambda: None))
 
 
 def run_episodes(cfg: CompanionConfig, opts: RunOptions,
@@ -268,8 +275,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     lockstep = opts.lockstep if opts.lockstep is not None else own_lockstep
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
     initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "checkpoints").mkdir(exist_ok=True)
+    prepare_run_dir(run_dir)  # unwritable: a clear error before any SITL, link or file
     result = RunResult(run_dir)
     first = opts.first_episode or next_episode(run_dir)
     if initial is None and opts.learn and first > 0:
@@ -317,6 +323,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                 result.records.append(record)
                 if on_episode is not None:
                     on_episode(record)
+                _stop_if_sitl_died(opened, i, run_dir)
         if runner is not None:
             runner.stop()
             result.learner_error = None if runner.error is None else repr(runner.error)
@@ -348,6 +355,19 @@ def _end_of_run(runner: EpisodeRunner) -> None:
                 runner.leave_safe(), runner.p.cfg.end_of_run)
 
 
+def _stop_if_sitl_died(vehicle: Vehicle, episode: int, run_dir: Path) -> None:
+    """The SITL this run started is gone (killed, crashed): no later episode can fly, so stop
+    now with a clear error instead of recording one failed episode after another."""
+    code = vehicle.sitl_exit_code()
+    if code is not None:
+        how = f"was killed by signal {-code}" if code < 0 else f"exited with code {code}"
+        raise SimulatorError(
+            f"the SITL started for this run {how} during episode {episode}; the dataset, the records "
+            f"and the checkpoints of finished episodes are kept in {run_dir}. Run again with the "
+            "same --run-dir to continue"
+        )
+
+
 def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:
     """The episode's record with the policy's fit after it (None for no samples: JSON has no NaN)."""
     def finite(x: float) -> float | None:
@@ -368,9 +388,9 @@ def _resume_policy(run_dir: Path, first: int) -> PolicySnapshot | None:
 
 
 def next_episode(run_dir: Path) -> int:
-    """The number after the last episode of ``run_dir`` (0 for a new folder), from its checkpoints
-    and its episode records, so that a resumed run folder keeps what it has and starts from new
-    seeds."""
+    """The number after the last episode of ``run_dir`` (0 for a new folder), from its checkpoints,
+    its episode records and its dataset (an episode cut short by a killed process has samples but
+    no record), so that a resumed run folder keeps what it has and starts from new seeds."""
     numbers = [int(p.stem.removeprefix("episode_")) for p in (run_dir / "checkpoints").glob("episode_*.npz")
                if p.stem.removeprefix("episode_").isdigit()]
     records = run_dir / "episodes.jsonl"
@@ -380,6 +400,13 @@ def next_episode(run_dir: Path) -> int:
                 numbers.append(int(json.loads(line)["episode"]))
             except (ValueError, KeyError, TypeError):
                 continue  # a torn last line from an interrupted run
+    dataset = run_dir / "human.csv"
+    if dataset.is_file():
+        try:
+            episodes = load_csv(dataset).episode
+            numbers += [int(episodes.max())] if len(episodes) else []
+        except (ColError, OSError):
+            pass  # reported when the dataset itself is opened
     return max(numbers, default=-1) + 1
 
 

@@ -88,6 +88,7 @@ def fly(
     run_dir: RunDirOpt = None,
     learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
     lockstep: Annotated[bool | None, typer.Option("--lockstep/--realtime", help="answer the SITL's frames (lockstep) or pace by the wall clock; default: lockstep for a synthetic pilot in our own SITL")] = None,
+    signing_key: Annotated[Path | None, typer.Option("--signing-key", help="MAVLink 2 signing key file (64 hex digits): sign everything, trust only signed messages; a SITL started here requires it too")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Fly episodes: the person (or scripted expert) demonstrates or intervenes; the policy learns."""
@@ -96,6 +97,8 @@ def fly(
 
     try:
         cfg = _load(config)
+        if signing_key is not None:
+            cfg = cfg.model_copy(update={"link": cfg.link.model_copy(update={"signing_key_file": str(signing_key)})})
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
         opts = RunOptions(connection=connect, simulator=simulator, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,

@@ -43,6 +43,9 @@ class LinkConfig(Section):
     setpoint_max_yaw_rate_rad_s: float = Field(3.0, gt=0)
     setpoint_max_distance_m: float = Field(1000.0, gt=0, description="position setpoints from origin")
     takeoff_max_alt_m: float = Field(120.0, gt=0)
+    signing_key_file: str = Field(
+        "", description="MAVLink 2 signing key (64 hex digits); sign everything, trust only signed messages; empty = off"
+    )
 
 
 class CommandsConfig(Section):

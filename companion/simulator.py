@@ -27,7 +27,9 @@ from companion.errors import SimulatorError
 class SimulatorClient:
     """JSON-lines client of the SITL's control surface (docs/protocols.md)."""
 
-    def __init__(self, host: str, port: int, timeout_s: float = 10.0) -> None:
+    def __init__(self, host: str, port: int, timeout_s: float = 10.0, token: str | None = None) -> None:
+        """``token``: the SITL's control token, when it listens beyond loopback (docs/reliability.md)."""
+        self._auth = {"token": token} if token else {}
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout_s)
         except OSError as exc:
@@ -39,7 +41,7 @@ class SimulatorClient:
         """Send one request and return its reply; a refusal raises SimulatorError."""
         with self._lock:
             try:
-                self._sock.sendall((json.dumps({"cmd": cmd, **args}) + "\n").encode())
+                self._sock.sendall((json.dumps({"cmd": cmd, **args, **self._auth}) + "\n").encode())
                 line = self._file.readline()
             except OSError as exc:
                 raise SimulatorError(f"simulator control surface failed during {cmd!r}: {exc}") from exc

@@ -14,7 +14,9 @@ from typing import Annotated
 import typer
 
 from colcommon.errors import ConfigError
+from colcommon.signing import read_key
 from sitl.config import SitlConfig, load_sitl_config
+from sitl.exposure import check_exposure
 
 app = typer.Typer(add_completion=False, help=__doc__)
 
@@ -29,6 +31,13 @@ def _parse_udp(pairs: list[str]) -> tuple[tuple[int, ...], tuple[int, ...]]:
         except ValueError:
             raise typer.BadParameter(f"--udp takes LOCAL:REMOTE port pairs, got {pair!r}") from None
     return tuple(local), tuple(remote)
+
+
+def _read_token(path: Path) -> str:
+    try:
+        return path.read_text().strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read the control token file {path}: {exc}") from None
 
 
 def _exit_with_parent() -> None:
@@ -95,6 +104,10 @@ def run(
     duration: Annotated[float | None, typer.Option(help="stop after this much simulation time (s)")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
     exit_with_parent: Annotated[bool, typer.Option("--exit-with-parent", help="stop when the process that started it dies (Linux)")] = False,
+    signing_key: Annotated[Path | None, typer.Option("--signing-key", help="MAVLink 2 signing key file (64 hex digits): sign everything, obey only messages signed with it")] = None,
+    host: Annotated[str | None, typer.Option(help="address every server binds (default 127.0.0.1); another needs --allow-remote")] = None,
+    allow_remote: Annotated[bool, typer.Option("--allow-remote", help="allow binding a non-loopback address (needs --control-token-file)")] = False,
+    control_token_file: Annotated[Path | None, typer.Option("--control-token-file", help="file holding the token every control-surface request must carry")] = None,
 ) -> None:
     """Start the SITL. Prints one line `READY {json}` with the bound ports once it listens."""
     if exit_with_parent:
@@ -103,13 +116,18 @@ def run(
     try:
         cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera,
                            autopilot)
+        if host is not None:
+            cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"host": host})})
+        key = read_key(signing_key) if signing_key is not None else None
+        token = _read_token(control_token_file) if control_token_file is not None else None
+        check_exposure(cfg.network.host, allow_remote, token)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     from sitl.server import SitlServer
 
     try:
-        server = SitlServer(cfg)
+        server = SitlServer(cfg, signing_key=key, allow_remote=allow_remote, control_token=token)
     except OSError as exc:
         typer.echo(f"error: cannot open the SITL's sockets ({exc}); is another SITL running? choose other ports", err=True)
         raise typer.Exit(1) from None

@@ -46,6 +46,19 @@ def truth(v: SimVehicle) -> dict[str, Any]:
         "armed": v.armed,
         "mode": v.mode.px4_name,
         "touchdown": None if td is None else {**asdict(td), "time_boot_ms": int(round(td.time_s * 1000))},
+        **failsafe_times(v),
+    }
+
+
+def failsafe_times(v: SimVehicle) -> dict[str, float | None]:
+    """Simulation times of the last offboard setpoint and of the offboard-loss failsafe, so a
+    test can measure setpoint loss -> hold exactly (docs/reliability.md)."""
+    last = getattr(v, "_last_offboard_s", None)
+    since = getattr(v, "_failsafe_since_s", None)
+    return {
+        "time_s": round(v.time_s, 6),
+        "last_setpoint_s": None if last is None or last != last or abs(last) == float("inf") else round(last, 6),
+        "failsafe_since_s": None if since is None else round(since, 6),
     }
 
 

@@ -10,6 +10,7 @@ stations and MAVSDK can connect; after three unanswered frames it falls back to 
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
 import math
@@ -26,8 +27,10 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, parse_request
+from sitl.exposure import authorised, check_exposure
 from sitl.handler import CameraInfo, MessageHandler
 from sitl.personality import make_vehicle
+from sitl.signing import SitlSigning
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
 from sitl.vehicle import AUTOPILOT, CAMERA, Outgoing, SimVehicle
 
@@ -49,15 +52,32 @@ class MavClient:
     """One MAVLink peer (a UDP port pair or a TCP connection) with its own parser."""
 
     name: str
+    secure = False  # may set a first signing key (SETUP_SIGNING): a wired link
+    signing: SitlSigning | None = None
 
     def __init__(self) -> None:
         self._new_parser()
         self.active = False  # has the peer ever talked to us?
         self.bad_packets = 0
+        self.signed_peer = False  # a validly signed message came in: only signed ones redirect us
+
+    def use_signing(self, signing: SitlSigning) -> None:
+        self.signing = signing
+        self._new_parser()
 
     def _new_parser(self) -> None:
         self.parser = M.MAVLink(None, 0, 0)
         self.parser.robust_parsing = True
+        if self.signing is not None:  # shared state: a parser reset never forgets a stream
+            self.signing.attach(self.parser)
+
+    def adopts_sender(self, msgs: list[mavlink.MAVLink_message]) -> bool:
+        """May these messages make their sender our peer? With signing required, once a signed
+        peer talked, only signed messages can (an unsigned sender cannot take its telemetry)."""
+        if any(m.get_signed() for m in msgs):
+            self.signed_peer = True
+            return True
+        return self.signing is None or not self.signing.required or not self.signed_peer
 
     def parse(self, data: bytes) -> list[mavlink.MAVLink_message]:
         try:
@@ -103,9 +123,11 @@ class UdpClient(MavClient):
                 return msgs
             except OSError:  # ICMP port unreachable from an earlier send: nobody listening
                 continue
-            self.remote = addr
-            self.active = True
-            msgs.extend(self.parse(data))
+            new = self.parse(data)
+            if self.adopts_sender(new):
+                self.remote = addr
+                self.active = True
+            msgs.extend(new)
             if len(self.parser.buf) > self.parser.buf_index:  # a datagram is whole: drop leftovers
                 self._new_parser()
 
@@ -133,6 +155,7 @@ class TcpClient(MavClient):
 
     def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
         super().__init__()
+        self.secure = ipaddress.ip_address(addr[0]).is_loopback  # a wire to this machine, like USB
         self.sock = sock
         self.sock.setblocking(False)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -202,9 +225,15 @@ def _listener(host: str, port: int) -> socket.socket:
 class SitlServer:
     """Runs a SimVehicle behind MAVLink, camera and control-surface sockets."""
 
-    def __init__(self, cfg: SitlConfig, frame_sink: FrameSink | None = None) -> None:
-        """``frame_sink``: where camera frames go instead of the TCP stream (a reader in this process)."""
+    def __init__(self, cfg: SitlConfig, frame_sink: FrameSink | None = None, signing_key: bytes | None = None,
+                 allow_remote: bool = False, control_token: str | None = None) -> None:
+        """``frame_sink``: where camera frames go instead of the TCP stream (a reader in this process);
+        ``signing_key``: MAVLink 2 signing required with this key (sitl/signing.py); a host other
+        than loopback needs ``allow_remote`` and a ``control_token`` (sitl/exposure.py)."""
+        check_exposure(cfg.network.host, allow_remote, control_token)
+        self.control_token = control_token
         self.cfg = cfg
+        self.signing = SitlSigning(signing_key, cfg.network.system_id)
         self._frame_sink = frame_sink
         net = cfg.network
         self.vehicle: SimVehicle = make_vehicle(cfg)
@@ -225,9 +254,10 @@ class SitlServer:
         self._frame_ms = -1
         self._control_queue: deque[tuple[ControlClient, bytes]] = deque()
         self._at_frame_boundary = True
-        self._mav_out = {AUTOPILOT: M.MAVLink(None, net.system_id, AUTOPILOT), CAMERA: M.MAVLink(None, net.system_id, CAMERA)}
+        self._mav_out = {c: self.signing.attach(M.MAVLink(None, net.system_id, c)) for c in (AUTOPILOT, CAMERA)}
         for local, remote in zip(net.udp_local_ports, net.udp_remote_ports):
             c = UdpClient(net.host, local, remote)
+            c.use_signing(self.signing)
             self.clients.append(c)
             self.sel.register(c.sock, selectors.EVENT_READ, lambda c=c: self._on_mavlink(c, c.read()))
         self.tcp_listener = _listener(net.host, net.tcp_port) if net.tcp_port is not None else None
@@ -418,6 +448,9 @@ class SitlServer:
 
     def _on_mavlink(self, client: MavClient, msgs: list[mavlink.MAVLink_message]) -> None:
         for msg in msgs:
+            if msg.get_type() == "SETUP_SIGNING":
+                self.signing.on_setup_signing(msg, client.secure)
+                continue
             result = self.handler.handle(msg)
             for out in result.replies:
                 data = self._pack(out)
@@ -452,6 +485,7 @@ class SitlServer:
         except OSError:
             return
         c = TcpClient(sock, addr)
+        c.use_signing(self.signing)
         self.clients.append(c)
         self.sel.register(sock, selectors.EVENT_READ, lambda c=c: self._on_mavlink(c, c.read()))
         log.info("%s connected", c.name)
@@ -503,7 +537,10 @@ class SitlServer:
         cc.sock.close()
 
     def _reply_control(self, cc: ControlClient, line: bytes) -> None:
-        reply = self.control_reply(line)
+        if authorised(line, self.control_token):
+            reply = self.control_reply(line)
+        else:
+            reply = {"ok": False, "error": "unauthorised: this control surface needs its \"token\""}
         try:  # bounded: a client that never reads its replies must not stall the simulation
             cc.sock.settimeout(CONTROL_REPLY_TIMEOUT_S)
             cc.sock.sendall((json.dumps(reply) + "\n").encode())

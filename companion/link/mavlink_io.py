@@ -23,6 +23,7 @@ from companion.errors import LinkLost
 from companion.link.base import LinkStats, ManualControlCallback, VehicleSnapshot
 from companion.link.connection import ConnectionSpec, open_mavlink
 from companion.link.manual_control import parse_manual_control
+from companion.link.signing import diagnose, enable_signing, load_key
 from companion.link.telemetry import (
     InvalidTelemetry,
     apply_message,
@@ -49,6 +50,7 @@ class MavlinkIO:
     ) -> None:
         self.cfg = cfg
         self._spec = spec
+        self._key = load_key(cfg)  # a bad key file fails here, before any port is opened
         self._clock = clock
         self._tlog = TlogWriter(tlog_path) if tlog_path is not None else None
         self.waiters = Waiters()
@@ -72,6 +74,7 @@ class MavlinkIO:
             raise LinkLost("this link was closed; open a new one")
         if self._thread is None:
             self._conn = open_mavlink(self._spec, self.cfg.source_system, self.cfg.source_component)
+            enable_signing(self._conn.mav, self._key)
             self._thread = threading.Thread(target=self._run, name="mavlink-link", daemon=True)
             self._thread.start()
 
@@ -99,6 +102,11 @@ class MavlinkIO:
 
     def stats(self) -> LinkStats:
         return LinkStats(**dict(self.counts))
+
+    def signing_problem(self) -> str | None:
+        """Why the vehicle's messages are unusable, if MAVLink signing explains it."""
+        conn = self._conn
+        return None if conn is None else diagnose(conn.mav, self.cfg.signing_key_file)
 
     def wait(
         self, ready: SnapshotTest, timeout_s: float, on_loss: Callable[[], None] | None = None

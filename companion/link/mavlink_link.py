@@ -19,7 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 import companion.link.px4_modes as px4_modes
 from companion.config import LinkConfig
-from companion.errors import CommandRejected, LinkLost, LinkTimeout
+from companion.errors import CommandRejected, LinkError, LinkLost, LinkTimeout
 from companion.link.base import (
     LinkStats,
     ManualControlCallback,
@@ -75,7 +75,11 @@ class MavlinkLink(VehicleLink):
     def connect(self, timeout_s: float | None = None) -> VehicleSnapshot:
         timeout_s = self.cfg.heartbeat_timeout_s if timeout_s is None else timeout_s
         self._io.start()
-        snapshot = self._io.wait(lambda s: s is not None, timeout_s)
+        snapshot = self._io.wait(lambda s: s is not None or self._io.signing_problem() is not None, timeout_s)
+        problem = self._io.signing_problem()
+        if problem is not None:
+            self._io.close()
+            raise LinkError(problem)
         if snapshot is None:
             raise LinkTimeout(
                 f"no autopilot HEARTBEAT on {self.cfg.connection} within {timeout_s} s; check the "

@@ -61,6 +61,11 @@ class MavsdkLink(VehicleLink):
                 "the MAVSDK link cannot record a .tlog (MAVSDK does not expose received bytes); "
                 "use the pymavlink link, or record with MAVProxy alongside"
             )
+        if cfg.signing_key_file:
+            raise ConfigError(
+                "the MAVSDK link does not sign MAVLink (companion.link.signing_key_file is set); "
+                "use the pymavlink link, which signs everything it sends"
+            )
         self.cfg = cfg
         self.url = mavsdk_url(cfg.connection, cfg.baud)
         self._limits = SetpointLimits(
