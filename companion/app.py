@@ -18,13 +18,13 @@ from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Protocol
 
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRecord, EpisodeRunner
+from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.errors import ColError, ConfigError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
@@ -126,6 +126,7 @@ class RunOptions:
     learn: bool = True
     record: bool = True
     first_episode: int = 0  # continuing a run folder: number episodes on from here
+    camera_rate_hz: float | None = None  # our SITL's camera frames per second (None: its config)
 
 
 @dataclass
@@ -167,8 +168,9 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         yield opts.connection, None
         return
     port = free_udp_port()
+    extra = ["--camera-rate", str(opts.camera_rate_hz)] if opts.camera_rate_hz else None
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed)
+                      seed=opts.seed, extra_args=extra)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:
@@ -241,12 +243,24 @@ def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir
         yield Vehicle(link, simulator, camera)
 
 
+class RunControl(EpisodeControl, Protocol):
+    """An operator's hand on a whole run (the console): sees what the run built, and is asked
+    before each episode (it may block there, e.g. while paused); False ends the run."""
+
+    def started(self, vehicle: Vehicle, learner: Learner, dataset: HumanDataset) -> None: ...
+
+    def before_episode(self, episode: int, phase: Phase) -> bool: ...
+
+
 def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                  on_episode: Callable[[EpisodeRecord], None] | None = None,
-                 vehicle: VehicleOpener = open_vehicle) -> RunResult:
+                 vehicle: VehicleOpener = open_vehicle, *, human: HumanInput | None = None,
+                 control: RunControl | None = None) -> RunResult:
     """Connect (or start the SITL), then fly ``episodes`` episodes of ``opts.condition``.
 
     ``vehicle`` opens what the episodes fly (the experiment's evaluation passes an in-process SITL).
+    ``human``: the person's input, instead of the one ``opts.pilot`` names (closed at the end).
+    ``control``: an operator watching each step, who may pause, end an episode or stop the run.
     """
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
@@ -261,7 +275,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     if initial is None and opts.learn and first > 0:
         initial = _resume_policy(run_dir, first)
     with contextlib.ExitStack() as stack:
-        human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
+        if human is None:
+            human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
         stack.callback(human.close)
         opened = stack.enter_context(vehicle(cfg, opts, lockstep, run_dir))
         link, simulator, camera = opened.link, opened.simulator, opened.camera
@@ -280,12 +295,17 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             fence=Geofence.from_config(cfg.safety), limiter=SetpointLimiter(cfg.commands, cfg.safety),
             cfg=cfg.session, lockstep=lockstep, simulator=simulator,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
+            control=control,
         )
+        if control is not None:
+            control.started(opened, learner, dataset)
         episode_runner = EpisodeRunner(parts)
         seed0 = cfg.session.seed + (first - opts.first_episode) if opts.seed is None else opts.seed
         with (run_dir / "episodes.jsonl").open("a") as log_file:
             for k, phase in enumerate(phases):
                 i = first + k
+                if control is not None and not control.before_episode(i, phase):
+                    break
                 record = episode_runner.run(i, phase, seed0 + k)
                 dataset.sync()
                 if runner is not None:

@@ -207,6 +207,51 @@ def demo(
 
 
 @app.command()
+def console(
+    connect: ConnectOpt = None,
+    simulator: SimulatorOpt = None,
+    host: Annotated[str, typer.Option(help="address the page is served on (127.0.0.1: this machine only)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port (0: any free port)")] = 8765,
+    config: ConfigOpt = None,
+    seed: SeedOpt = None,
+    run_dir: RunDirOpt = None,
+    camera_rate: Annotated[float, typer.Option("--camera-rate", min=1.0, help="frames per second of our SITL's camera for the page")] = 35.0,
+    start: Annotated[str | None, typer.Option("--start", help="start a run at once: CONDITION:EPISODES, e.g. col:8 (else press Start in the page)")] = None,
+    learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
+    verbose: VerboseOpt = False,
+) -> None:
+    """The pilot console in a browser: see the camera, fly with a gamepad, intervene, watch the policy learn.
+
+    Serves a page at http://HOST:PORT/ and flies the SITL (started in real time for each run) or
+    the vehicle of --connect. The page's gamepad (Xbox layout) or keyboard is the person's input."""
+    _setup(verbose)
+    from companion.app import default_run_dir
+    from companion.console.server import run_console
+    from companion.console.session import ConsoleOptions, ConsoleSession
+
+    try:
+        cfg = _load(config)
+        autostart = None
+        if start is not None:
+            cond, _, count = start.partition(":")
+            if cond not in ("demo", "int", "col") or not count.isdigit() or int(count) < 1:
+                raise typer.BadParameter(f"--start takes CONDITION:EPISODES with demo, int or col, got {start!r}")
+            autostart = (cond, int(count))
+        opts = ConsoleOptions(run_dir=run_dir or default_run_dir(cfg, "console"), connection=connect, simulator=simulator,
+                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn)
+
+        def ready(url: str) -> None:
+            typer.echo(f"CONSOLE {url}", err=False)
+            typer.echo(f"open {url} in a browser; runs write to {opts.run_dir}; Ctrl-C stops", err=True)
+
+        run_console(lambda publish, frame: ConsoleSession(cfg, opts, publish, frame), host, port, ready, autostart)
+    except ColError as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise _fail(ColError(f"cannot serve the console on {host}:{port}: {exc}; choose another --port")) from None
+
+
+@app.command()
 def experiment(
     config: Annotated[Path | None, typer.Option("--config", "-c", help="experiment TOML: the \\[experiment] grid plus \\[companion]/\\[sitl] tables (default: configs/experiment.toml)")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="trials side by side, each with its own SITL (default: the number of CPUs)")] = None,

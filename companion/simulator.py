@@ -28,6 +28,7 @@ class SimulatorClient:
     """JSON-lines client of the SITL's control surface (docs/protocols.md)."""
 
     def __init__(self, host: str, port: int, timeout_s: float = 10.0) -> None:
+        self.address = f"{host}:{port}"
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout_s)
         except OSError as exc:

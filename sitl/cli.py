@@ -53,6 +53,7 @@ def build_config(
     camera_port: int | None = None,
     control_port: int | None = None,
     no_camera: bool = False,
+    camera_rate_hz: float | None = None,
 ) -> SitlConfig:
     """Apply command-line overrides to a config, re-validating the result."""
     data = base.model_dump()
@@ -72,6 +73,8 @@ def build_config(
         data["network"]["control_port"] = control_port
     if no_camera:
         data["camera"]["enabled"] = False
+    if camera_rate_hz is not None:
+        data["camera"]["stream_rate_hz"] = camera_rate_hz
     from colcommon.configio import build
 
     return build(SitlConfig, data, "command-line options")
@@ -88,6 +91,7 @@ def run(
     camera_port: Annotated[int | None, typer.Option(help="camera stream TCP port (0 = any free)")] = None,
     control_port: Annotated[int | None, typer.Option(help="control surface TCP port (0 = any free)")] = None,
     no_camera: Annotated[bool, typer.Option("--no-camera", help="do not render or serve the camera")] = False,
+    camera_rate: Annotated[float | None, typer.Option("--camera-rate", min=0.1, help="real time: camera frames per second of simulation time (35 for a person's view)")] = None,
     duration: Annotated[float | None, typer.Option(help="stop after this much simulation time (s)")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
     exit_with_parent: Annotated[bool, typer.Option("--exit-with-parent", help="stop when the process that started it dies (Linux)")] = False,
@@ -97,7 +101,8 @@ def run(
         _exit_with_parent()
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
     try:
-        cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera)
+        cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera,
+                           camera_rate)
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
