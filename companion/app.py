@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
@@ -40,6 +40,9 @@ from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
+
+if TYPE_CHECKING:
+    from companion.pictures.recorder import FlightRecorder
 
 log = logging.getLogger(__name__)
 Condition = Literal["demo", "int", "col", "eval"]
@@ -127,6 +130,7 @@ class RunOptions:
     record: bool = True
     first_episode: int = 0  # continuing a run folder: number episodes on from here
     camera_rate_hz: float | None = None  # our SITL's camera frames per second (None: its config)
+    pictures: bool = False  # write flight.png and the last episode's episode_NNN.mp4 into the run folder
 
 
 @dataclass
@@ -271,6 +275,11 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "checkpoints").mkdir(exist_ok=True)
     result = RunResult(run_dir)
+    recorder = None
+    if opts.pictures and control is None:
+        from companion.pictures.recorder import FlightRecorder
+
+        control = recorder = FlightRecorder()
     first = opts.first_episode or next_episode(run_dir)
     if initial is None and opts.learn and first > 0:
         initial = _resume_policy(run_dir, first)
@@ -327,7 +336,29 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.dataset_size = len(dataset)
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
+    if recorder is not None:
+        write_pictures(recorder, result, cfg, opts.condition)
     return result
+
+
+def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionConfig, label: str) -> list[Path]:
+    """flight.png and the last episode's video; a failure here is logged, never fails the run."""
+    from companion.pictures.flight_plot import plot_flight
+    from companion.pictures.video import write_episode_video
+
+    written: list[Path] = []
+    outcomes = {r.episode: (r.outcome, r.success) for r in result.records}
+    pad = cfg.session.pad_ned_m
+    try:
+        written.append(plot_flight(recorder.tracks, outcomes, (pad[0], pad[1]), cfg.pilot.pad_radius_m,
+                                   result.run_dir / "flight.png", f"{label}: {len(recorder.tracks)} episodes from above"))
+        if recorder.frames:
+            last = recorder.frames[-1].episode
+            written.append(write_episode_video(recorder.frames, result.run_dir / f"episode_{last:03d}.mp4",
+                                               cfg.session.control_rate_hz))
+    except Exception as exc:  # pictures are a courtesy: the run's data is already safe
+        log.warning("could not write the run's pictures: %r", exc)
+    return written
 
 
 def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:

@@ -24,6 +24,7 @@ SimulatorOpt = Annotated[str | None, typer.Option("--simulator", help="HOST:PORT
 SeedOpt = Annotated[int | None, typer.Option(help="seed of the first episode (episode i uses seed + i)")]
 RunDirOpt = Annotated[Path | None, typer.Option("--run-dir", help="where to write dataset, checkpoints, logs (default: runs/<time>-<condition>)")]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="log what happens")]
+PicturesOpt = Annotated[bool, typer.Option("--pictures/--no-pictures", help="write flight.png (every track from above) and the last episode's episode_NNN.mp4 (camera with HUD) into the run folder")]
 
 
 def _setup(verbose: bool) -> None:
@@ -88,6 +89,7 @@ def fly(
     run_dir: RunDirOpt = None,
     learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
     lockstep: Annotated[bool | None, typer.Option("--lockstep/--realtime", help="answer the SITL's frames (lockstep) or pace by the wall clock; default: lockstep for a synthetic pilot in our own SITL")] = None,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """Fly episodes: the person (or scripted expert) demonstrates or intervenes; the policy learns."""
@@ -99,7 +101,7 @@ def fly(
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
         opts = RunOptions(connection=connect, simulator=simulator, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,
-                          run_dir=run_dir, config_path=config, seed=seed, learn=learn, lockstep=lockstep)
+                          run_dir=run_dir, config_path=config, seed=seed, learn=learn, lockstep=lockstep, pictures=pictures)
         result = _run(cfg, opts, f"fly {condition}")
     except ColError as exc:
         raise _fail(exc) from None
@@ -113,12 +115,13 @@ def fly(
     typer.echo(json.dumps(result.summary()))
 
 
-def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | None, config: Path | None) -> dict:  # type: ignore[no-untyped-def]
+def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | None, config: Path | None,  # type: ignore[no-untyped-def]
+             pictures: bool = False) -> dict:
     """Fly ``checkpoint`` alone on seeded starts; success rate with a 95 % interval."""
     from companion.app import RunOptions
 
     opts = RunOptions(pilot="none", condition="eval", episodes=episodes, checkpoint=checkpoint, run_dir=run_dir,
-                      config_path=config, seed=seed, learn=False, record=False, lockstep=True)
+                      config_path=config, seed=seed, learn=False, record=False, lockstep=True, pictures=pictures)
     result = _run(cfg, opts, "eval")
     n, k = len(result.records), result.successes
     lo, hi = wilson_interval(k, n)
@@ -142,13 +145,14 @@ def eval_cmd(
     config: ConfigOpt = None,
     seed: Annotated[int, typer.Option(help="seed of the first start (held-out starts use a different range than training)")] = 100_000,
     run_dir: RunDirOpt = None,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """Fly a policy alone in the SITL (lockstep) and report its success rate."""
     _setup(verbose)
     try:
         cfg = _load(config)
-        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config)
+        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config, pictures)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:
@@ -166,30 +170,36 @@ def demo(
     eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="episodes the final policy flies alone")] = 10,
     config: ConfigOpt = None,
     run_dir: RunDirOpt = None,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """A short Cycle-of-Learning session in the SITL: demonstrate, intervene, evaluate."""
     _setup(verbose)
-    from companion.app import RunOptions, default_run_dir, run_episodes
+    from companion.app import RunOptions, default_run_dir, run_episodes, write_pictures
+    from companion.pictures.recorder import FlightRecorder
 
     try:
         cfg = _load(config)
         root = run_dir or default_run_dir(cfg, "demo")
+        recorder = FlightRecorder() if pictures else None  # one picture of both training runs
         typer.echo(f"Cycle-of-Learning demo in {root}: {demonstrations} demonstrations, {interventions} "
                    f"interventions, then {eval_episodes} evaluation episodes of the policy alone.")
-        demo_opts = RunOptions(pilot="expert", condition="demo", episodes=demonstrations, run_dir=root / "train", config_path=config)
-        trained = run_episodes(cfg, demo_opts)
+        demo_opts = RunOptions(pilot="expert", condition="demo", episodes=demonstrations, run_dir=root / "train",
+                               config_path=config)
+        trained = run_episodes(cfg, demo_opts, control=recorder)
         last_episode = trained.records[-1].episode  # a resumed --run-dir numbers episodes on
         last = trained.run_dir / "checkpoints" / f"episode_{last_episode:03d}.npz"
         if interventions:
             int_opts = RunOptions(pilot="expert", condition="int", episodes=interventions, run_dir=root / "train",
                                   checkpoint=last, config_path=config, seed=cfg.session.seed + last_episode + 1,
                                   first_episode=last_episode + 1)
-            more = run_episodes(cfg, int_opts)
+            more = run_episodes(cfg, int_opts, control=recorder)
             trained.records += more.records
             trained.dataset_size = more.dataset_size
             last = more.run_dir / "checkpoints" / f"episode_{more.records[-1].episode:03d}.npz"
-        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config)
+        if recorder is not None:
+            write_pictures(recorder, trained, cfg, "demo")
+        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config, pictures)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:

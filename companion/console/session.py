@@ -57,7 +57,7 @@ class _RunState:
     error: str | None = None
     episode: int | None = None
     phase: str | None = None
-    track_ne: list[list[float]] = field(default_factory=list)
+    track_ne: list[list[Any]] = field(default_factory=list)  # [north, east, who] per step
     last_step: dict[str, Any] | None = None
 
 
@@ -185,7 +185,7 @@ class ConsoleSession:
         message = step_message(view, learner.last_loss if learner is not None else None,
                                len(dataset) if dataset is not None else 0)
         with self._lock:
-            self._run.track_ne.append(message["position_ne_m"])
+            self._run.track_ne.append([*message["position_ne_m"], message["who"]])
             self._run.last_step = message
         self.publish(message)
 
@@ -270,7 +270,7 @@ class ConsoleSession:
         """Everything a page that just connected needs: settings, history, this episode's track."""
         c = self.cfg
         with self._lock:
-            track = list(self._run.track_ne)
+            track, episode = list(self._run.track_ne), self._run.episode
             records = list(self.records)
         return {
             "type": "hello",
@@ -281,7 +281,7 @@ class ConsoleSession:
             "input_timeout_s": c.pilot.manual_timeout_s,
             "pad_ned_m": list(c.session.pad_ned_m), "pad_radius_m": c.pilot.pad_radius_m,
             "fence_radius_m": c.safety.fence_radius_m, "episodes_default": c.session.episodes,
-            "track_ne_m": track, "records": records, "status": self.status(),
+            "track": track, "track_episode": episode, "records": records, "status": self.status(),
         }
 
     def truth(self) -> dict[str, Any] | None:

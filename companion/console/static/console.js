@@ -31,7 +31,8 @@ function command(name, extra) { send(Object.assign({ type: "command", name }, ex
 
 function onJson(m) {
   if (m.type === "hello") {
-    C.hello = m; C.track = m.track_ne_m.map(([n, e]) => ({ n, e, who: "policy" }));
+    C.hello = m; C.track = m.track.map(([n, e, who]) => ({ n, e, who }));
+    C.trackEpisode = m.track_episode;
     C.records = m.records; onStatus(m.status); drawPlot(); fillTable(); hideBanner();
     document.getElementById("episodes").value = m.episodes_default;
   } else if (m.type === "status") { onStatus(m); }
@@ -58,11 +59,13 @@ function onStatus(s) {
 }
 
 function onStep(m) {
-  if (!C.lastStep || C.lastStep.episode !== m.episode) C.track = [];
+  if (C.trackEpisode !== m.episode) { C.track = []; C.trackEpisode = m.episode; }
   C.lastStep = m; C.steps.push({ episode: m.episode, step: m.step, who: m.who, recorded: m.recorded, tag: m.tag });
   if (C.steps.length > 20000) C.steps.splice(0, 10000);
   C.track.push({ n: m.position_ne_m[0], e: m.position_ne_m[1], who: m.who });
-  if (m.who === "hold") showBanner("HOLDING POSITION: your input is lost. The policy does not take over.");
+  if (m.who === "hold" && !(C.status && C.status.input.hold_reason)) {
+    showBanner("HOLDING POSITION: the person's input is lost. The policy does not take over.");
+  }
   drawMap();
   if (!lastFrame) drawVideo();
 }
