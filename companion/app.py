@@ -275,11 +275,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "checkpoints").mkdir(exist_ok=True)
     result = RunResult(run_dir)
-    recorder = None
-    if opts.pictures and control is None:
-        from companion.pictures.recorder import FlightRecorder
-
-        control = recorder = FlightRecorder()
+    recorder = _recorder(opts, control)
+    control = control or recorder
     first = opts.first_episode or next_episode(run_dir)
     if initial is None and opts.learn and first > 0:
         initial = _resume_policy(run_dir, first)
@@ -339,6 +336,15 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     if recorder is not None:
         write_pictures(recorder, result, cfg, opts.condition)
     return result
+
+
+def _recorder(opts: RunOptions, control: RunControl | None) -> FlightRecorder | None:
+    """The watcher behind the pictures, when asked for and no operator holds the run."""
+    if not opts.pictures or control is not None:
+        return None
+    from companion.pictures.recorder import FlightRecorder
+
+    return FlightRecorder()
 
 
 def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionConfig, label: str) -> list[Path]:
