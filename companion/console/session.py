@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,6 +80,7 @@ def step_message(view: StepView, learner_loss: float | None, samples: int) -> di
         "position_ne_m": [round(n, 3), round(e, 3)], "yaw_rad": round(obs.attitude_rad[2], 4),
         "pad": pad, "image_size_px": list(obs.image_size_px), "time_boot_ms": obs.time_boot_ms,
         "policy_version": view.policy_version, "loss": _finite(learner_loss, 6), "samples": samples,
+        "wall_ms": round(time.time() * 1000.0, 1),  # just after the setpoint went out (latency bench)
         "setpoint": {"forward_m_s": round(view.setpoint.forward_m_s, 3), "right_m_s": round(view.setpoint.right_m_s, 3),
                      "down_m_s": round(view.setpoint.down_m_s, 3), "yaw_rate_rad_s": round(view.setpoint.yaw_rate_rad_s, 3)},
     }

@@ -2,12 +2,13 @@
 // gamepad (Gamepad API, standard layout) or keyboard sent to the companion over one WebSocket.
 "use strict";
 
-const SEND_HZ = 30;            // >= the control rate (10.5 Hz)
+const SEND_HZ = 30;            // at least this often (>= the control rate, 10.5 Hz) ...
+const POLL_MS = 8;             // ... and at once when the sticks change (polled this often)
 const KEY_STICK = 0.6;         // stick deflection of a held key
 const COLOURS = { person: "#ff9800", policy: "#29b6f6", hold: "#e53935" };
 
 const C = window.colConsole = {
-  framesDrawn: 0, frameLatenciesMs: [], drawTimesMs: [], steps: [], records: [], status: null,
+  framesDrawn: 0, frameLatenciesMs: [], drawTimesMs: [], frameStamps: [], steps: [], records: [], status: null,
   hello: null, lastStep: null, track: [], inputsSent: 0, connected: false, notices: [],
 };
 let ws = null, seq = 0, pendingBitmap = null, lastFrame = null, truth = null;
@@ -60,7 +61,9 @@ function onStatus(s) {
 
 function onStep(m) {
   if (C.trackEpisode !== m.episode) { C.track = []; C.trackEpisode = m.episode; }
-  C.lastStep = m; C.steps.push({ episode: m.episode, step: m.step, who: m.who, recorded: m.recorded, tag: m.tag });
+  C.lastStep = m;
+  C.steps.push({ episode: m.episode, step: m.step, who: m.who, recorded: m.recorded, tag: m.tag,
+    wallMs: m.wall_ms, forward: m.setpoint.forward_m_s });
   if (C.steps.length > 20000) C.steps.splice(0, 10000);
   C.track.push({ n: m.position_ne_m[0], e: m.position_ne_m[1], who: m.who });
   if (m.who === "hold" && !(C.status && C.status.input.hold_reason)) {
@@ -81,7 +84,10 @@ function onFrame(buf) {
     const now = performance.timeOrigin + performance.now();
     C.framesDrawn += 1;
     C.drawTimesMs.push(now); C.frameLatenciesMs.push(now - header.sentMs);
-    if (C.drawTimesMs.length > 2000) { C.drawTimesMs.splice(0, 1000); C.frameLatenciesMs.splice(0, 1000); }
+    C.frameStamps.push([header.stampMs, header.sentMs, now]);
+    if (C.drawTimesMs.length > 4000) {
+      C.drawTimesMs.splice(0, 2000); C.frameLatenciesMs.splice(0, 2000); C.frameStamps.splice(0, 2000);
+    }
   });
 }
 
@@ -207,14 +213,18 @@ function readInput() {
   return { source: "keyboard", axes: [k("a", "d"), k("w", "s"), k("ArrowLeft", "ArrowRight"), k("ArrowUp", "ArrowDown")], buttons };
 }
 
+let lastSent = { key: "", at: 0 };
 function sendInput() {
-  const inp = readInput();
+  const inp = readInput(), now = performance.now();
+  const key = JSON.stringify([inp.axes, inp.buttons[7]]);
+  if (key === lastSent.key && now - lastSent.at < 1000 / SEND_HZ) return;
+  lastSent = { key, at: now };
   setText("pad-state", inp.source === "keyboard" ? "no gamepad: keyboard" : `gamepad: ${inp.source}`);
   drawStick("stick-left", inp.axes[0], inp.axes[1]);
   drawStick("stick-right", inp.axes[2], inp.axes[3]);
   document.getElementById("trigger-bar").style.height = `${Math.round(100 * (inp.buttons[7] || 0))}%`;
   if (!C.connected) return;
-  send({ type: "input", axes: inp.axes, buttons: inp.buttons, seq: seq++, t: performance.timeOrigin + performance.now() });
+  send({ type: "input", axes: inp.axes, buttons: inp.buttons, seq: seq++, t: performance.timeOrigin + now });
   C.inputsSent += 1;
 }
 
@@ -246,5 +256,5 @@ document.getElementById("stop").onclick = () => command("stop");
 document.getElementById("handback").onclick = () => command("hand_back");
 
 connect();
-setInterval(sendInput, 1000 / SEND_HZ);
+setInterval(sendInput, POLL_MS);
 drawVideo(); drawMap(); drawPlot();
