@@ -225,6 +225,7 @@ def console(
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), colf://host:port, device index, file or URL')] = None,
     camera_rate: Annotated[float, typer.Option("--camera-rate", min=1.0, help="frames per second of our SITL's camera for the page")] = 35.0,
     start: Annotated[str | None, typer.Option("--start", help="start a run at once: CONDITION:EPISODES, e.g. col:8 (else press Start in the page)")] = None,
     learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
@@ -241,6 +242,8 @@ def console(
 
     try:
         cfg = _load(config)
+        if camera is not None:
+            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
         autostart = None
         if start is not None:
             cond, _, count = start.partition(":")

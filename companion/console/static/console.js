@@ -53,6 +53,10 @@ function onStatus(s) {
   document.getElementById("pause").textContent = r.paused ? "Resume" : "Pause";
   const running = ["starting", "running", "paused", "stopping"].includes(r.state);
   document.getElementById("start").disabled = running;
+  if (running && r.condition) {  // the form shows the run that is going
+    document.getElementById("condition").value = r.condition;
+    document.getElementById("episodes").value = r.episodes;
+  }
   if (s.input.hold_reason) {
     showBanner(`HOLDING POSITION: ${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
   } else if (C.connected) { hideBanner(); }
