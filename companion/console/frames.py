@@ -1,7 +1,7 @@
 """The camera for the page: each new frame as a JPEG with a small header, on its own thread.
 
-The pump waits on the run's camera source (the same one the observer reads), so the page sees
-every frame the camera delivers, not only the control loop's. Message layout (little-endian):
+The pump watches the run's camera source (the same one the observer reads) every few
+milliseconds, so the page sees every frame the camera delivers, not only the control loop's. Message layout (little-endian):
 frame_number u32, time_boot_ms u32, wall time when encoded in ms since the epoch f64, then
 the JPEG bytes.
 """
@@ -41,9 +41,9 @@ class FramePump:
     """Hands every new frame of ``camera`` to ``on_frame`` (already encoded) until stopped."""
 
     def __init__(self, camera: CameraSource, on_frame: Callable[[Frame, bytes], None],
-                 jpeg_quality: int = 80, wait_s: float = 0.5) -> None:
+                 jpeg_quality: int = 80, poll_s: float = 0.004) -> None:
         self.camera, self.on_frame = camera, on_frame
-        self.jpeg_quality, self.wait_s = jpeg_quality, wait_s
+        self.jpeg_quality, self.poll_s = jpeg_quality, poll_s
         self.frames = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="console-frames", daemon=True)
@@ -57,11 +57,9 @@ class FramePump:
             self._thread.join(timeout_s)
 
     def _next(self, last: Frame | None) -> Frame | None:
-        """The next frame after ``last``: by stamp, or any other frame (a reset stamps anew)."""
-        after = 0 if last is None else last.time_boot_ms + 1
-        frame = self.camera.frame_at(after, self.wait_s)
-        if frame is None:
-            frame = self.camera.latest()
+        """The camera's newest frame if it is not ``last`` (polling never waits inside the
+        source, whose waits would warn of frames the control loop did not ask for)."""
+        frame = self.camera.latest()
         if frame is None or (last is not None and frame.frame_number == last.frame_number):
             return None
         return frame
@@ -71,7 +69,7 @@ class FramePump:
         while not self._stop.is_set():
             frame = self._next(last)
             if frame is None:
-                self._stop.wait(0.01)
+                self._stop.wait(self.poll_s)
                 continue
             last = frame
             try:
