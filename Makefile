@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test test-all demo bench lint clean image-check
+.PHONY: setup setup-browser test test-all demo bench lint clean image-check
 
 setup: $(STAMP)
 
@@ -13,8 +13,12 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e '.[train,mavsdk,gamepad,onnx,test,cluster]'
+	$(PY) -m pip install --quiet -e '.[train,mavsdk,gamepad,console,onnx,test,cluster]'
 	touch $(STAMP)
+
+# Debian's chromium for the console's browser test (Playwright's own download is not needed)
+setup-browser:
+	command -v chromium >/dev/null 2>&1 || (apt-get update -q && apt-get install -y -q chromium)
 
 test: setup
 	$(PY) -m pytest -q

@@ -18,13 +18,13 @@ from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRecord, EpisodeRunner
+from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
@@ -43,6 +43,9 @@ from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
+
+if TYPE_CHECKING:
+    from companion.pictures.recorder import FlightRecorder
 
 log = logging.getLogger(__name__)
 Condition = Literal["demo", "int", "col", "eval"]
@@ -129,6 +132,8 @@ class RunOptions:
     learn: bool = True
     record: bool = True
     first_episode: int = 0  # continuing a run folder: number episodes on from here
+    camera_rate_hz: float | None = None  # our SITL's camera frames per second (None: its config)
+    pictures: bool = False  # write flight.png and the last episode's episode_NNN.mp4 into the run folder
 
 
 @dataclass
@@ -179,8 +184,11 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
     key_file = cfg.link.signing_key_file  # our SITL gets our key: signing required on both sides
     if key_file:
         read_key(key_file)  # a bad key file is reported before any process starts
+    extra = ["--signing-key", key_file] if key_file else []
+    if opts.camera_rate_hz:
+        extra += ["--camera-rate", str(opts.camera_rate_hz)]
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed, extra_args=["--signing-key", key_file] if key_file else None)
+                      seed=opts.seed, extra_args=extra or None)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:
@@ -261,12 +269,24 @@ def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir
                       sitl_exit_code=(lambda: sitl.proc.poll()) if sitl is not None else (lambda: None))
 
 
+class RunControl(EpisodeControl, Protocol):
+    """An operator's hand on a whole run (the console): sees what the run built, and is asked
+    before each episode (it may block there, e.g. while paused); False ends the run."""
+
+    def started(self, vehicle: Vehicle, learner: Learner, dataset: HumanDataset) -> None: ...
+
+    def before_episode(self, episode: int, phase: Phase) -> bool: ...
+
+
 def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                  on_episode: Callable[[EpisodeRecord], None] | None = None,
-                 vehicle: VehicleOpener = open_vehicle) -> RunResult:
+                 vehicle: VehicleOpener = open_vehicle, *, human: HumanInput | None = None,
+                 control: RunControl | None = None) -> RunResult:
     """Connect (or start the SITL), then fly ``episodes`` episodes of ``opts.condition``.
 
     ``vehicle`` opens what the episodes fly (the experiment's evaluation passes an in-process SITL).
+    ``human``: the person's input, instead of the one ``opts.pilot`` names (closed at the end).
+    ``control``: an operator watching each step, who may pause, end an episode or stop the run.
     """
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
@@ -277,11 +297,14 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
     prepare_run_dir(run_dir)  # unwritable: a clear error before any SITL, link or file
     result = RunResult(run_dir)
+    recorder = _recorder(opts, control)
+    control = control or recorder
     first = opts.first_episode or next_episode(run_dir)
     if initial is None and opts.learn and first > 0:
         initial = _resume_policy(run_dir, first)
     with contextlib.ExitStack() as stack:
-        human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
+        if human is None:
+            human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
         stack.callback(human.close)
         opened = stack.enter_context(vehicle(cfg, opts, lockstep, run_dir))
         link, simulator, camera = opened.link, opened.simulator, opened.camera
@@ -300,7 +323,10 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             fence=Geofence.from_config(cfg.safety), limiter=SetpointLimiter(cfg.commands, cfg.safety),
             cfg=cfg.session, lockstep=lockstep, simulator=simulator,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
+            control=control,
         )
+        if control is not None:
+            control.started(opened, learner, dataset)
         episode_runner = EpisodeRunner(parts)
         check_lockstep(episode_runner.dialect, lockstep)
         if not opened.owned:  # after the last episode, an error or Ctrl-C: before the link closes
@@ -309,6 +335,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         with (run_dir / "episodes.jsonl").open("a") as log_file:
             for k, phase in enumerate(phases):
                 i = first + k
+                if control is not None and not control.before_episode(i, phase):
+                    break
                 record = episode_runner.run(i, phase, seed0 + k)
                 dataset.sync()
                 if runner is not None:
@@ -331,6 +359,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.dataset_size = len(dataset)
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
+    if recorder is not None:
+        write_pictures(recorder, result, cfg, opts.condition)
     return result
 
 
@@ -366,6 +396,35 @@ def _stop_if_sitl_died(vehicle: Vehicle, episode: int, run_dir: Path) -> None:
             f"and the checkpoints of finished episodes are kept in {run_dir}. Run again with the "
             "same --run-dir to continue"
         )
+
+
+def _recorder(opts: RunOptions, control: RunControl | None) -> FlightRecorder | None:
+    """The watcher behind the pictures, when asked for and no operator holds the run."""
+    if not opts.pictures or control is not None:
+        return None
+    from companion.pictures.recorder import FlightRecorder
+
+    return FlightRecorder()
+
+
+def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionConfig, label: str) -> list[Path]:
+    """flight.png and the last episode's video; a failure here is logged, never fails the run."""
+    from companion.pictures.flight_plot import plot_flight
+    from companion.pictures.video import write_episode_video
+
+    written: list[Path] = []
+    outcomes = {r.episode: (r.outcome, r.success) for r in result.records}
+    pad = cfg.session.pad_ned_m
+    try:
+        written.append(plot_flight(recorder.tracks, outcomes, (pad[0], pad[1]), cfg.pilot.pad_radius_m,
+                                   result.run_dir / "flight.png", f"{label}: {len(recorder.tracks)} episodes from above"))
+        if recorder.frames:
+            last = recorder.frames[-1].episode
+            written.append(write_episode_video(recorder.frames, result.run_dir / f"episode_{last:03d}.mp4",
+                                               cfg.session.control_rate_hz))
+    except Exception as exc:  # pictures are a courtesy: the run's data is already safe
+        log.warning("could not write the run's pictures: %r", exc)
+    return written
 
 
 def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:

@@ -24,6 +24,7 @@ SimulatorOpt = Annotated[str | None, typer.Option("--simulator", help="HOST:PORT
 SeedOpt = Annotated[int | None, typer.Option(help="seed of the first episode (episode i uses seed + i)")]
 RunDirOpt = Annotated[Path | None, typer.Option("--run-dir", help="where to write dataset, checkpoints, logs (default: runs/<time>-<condition>)")]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="log what happens")]
+PicturesOpt = Annotated[bool, typer.Option("--pictures/--no-pictures", help="write flight.png (every track from above) and the last episode's episode_NNN.mp4 (camera with HUD) into the run folder")]
 
 
 def _setup(verbose: bool) -> None:
@@ -89,6 +90,7 @@ def fly(
     learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
     lockstep: Annotated[bool | None, typer.Option("--lockstep/--realtime", help="answer the SITL's frames (lockstep) or pace by the wall clock; default: lockstep for a synthetic pilot in our own SITL")] = None,
     signing_key: Annotated[Path | None, typer.Option("--signing-key", help="MAVLink 2 signing key file (64 hex digits): sign everything, trust only signed messages; a SITL started here requires it too")] = None,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """Fly episodes: the person (or scripted expert) demonstrates or intervenes; the policy learns."""
@@ -102,7 +104,7 @@ def fly(
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
         opts = RunOptions(connection=connect, simulator=simulator, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,
-                          run_dir=run_dir, config_path=config, seed=seed, learn=learn, lockstep=lockstep)
+                          run_dir=run_dir, config_path=config, seed=seed, learn=learn, lockstep=lockstep, pictures=pictures)
         result = _run(cfg, opts, f"fly {condition}")
     except ColError as exc:
         raise _fail(exc) from None
@@ -118,14 +120,15 @@ def fly(
 
 
 def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | None, config: Path | None,  # type: ignore[no-untyped-def]
-             connection: str | None = None, simulator: str | None = None) -> dict:
+             connection: str | None = None, simulator: str | None = None, pictures: bool = False) -> dict:
     """Fly ``checkpoint`` alone on seeded starts; success rate with a 95 % interval (None where
     success cannot be judged: a vehicle without the SITL's ground truth)."""
     from companion.app import RunOptions
 
     opts = RunOptions(connection=connection, simulator=simulator, pilot="none", condition="eval", episodes=episodes,
                       checkpoint=checkpoint, run_dir=run_dir, config_path=config, seed=seed, learn=False,
-                      record=False, lockstep=None if connection else True)
+                      record=False, lockstep=None if connection else True,
+                      pictures=pictures)
     result = _run(cfg, opts, "eval")
     n, k, judged = len(result.records), result.successes, result.judged
     lo, hi = wilson_interval(k, judged)
@@ -153,6 +156,7 @@ def eval_cmd(
     config: ConfigOpt = None,
     seed: Annotated[int, typer.Option(help="seed of the first start (held-out starts use a different range than training)")] = 100_000,
     run_dir: RunDirOpt = None,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """Fly a policy alone (in the SITL, lockstep; or on the vehicle --connect names) and report its success rate."""
@@ -161,7 +165,7 @@ def eval_cmd(
         cfg = _load(config)
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
-        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config, connect, simulator)
+        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config, connect, simulator, pictures)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:
@@ -200,30 +204,36 @@ def demo(
     eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="episodes the final policy flies alone")] = 10,
     config: ConfigOpt = None,
     run_dir: RunDirOpt = None,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """A short Cycle-of-Learning session in the SITL: demonstrate, intervene, evaluate."""
     _setup(verbose)
-    from companion.app import RunOptions, default_run_dir, run_episodes
+    from companion.app import RunOptions, default_run_dir, run_episodes, write_pictures
+    from companion.pictures.recorder import FlightRecorder
 
     try:
         cfg = _load(config)
         root = run_dir or default_run_dir(cfg, "demo")
+        recorder = FlightRecorder() if pictures else None  # one picture of both training runs
         typer.echo(f"Cycle-of-Learning demo in {root}: {demonstrations} demonstrations, {interventions} "
                    f"interventions, then {eval_episodes} evaluation episodes of the policy alone.")
-        demo_opts = RunOptions(pilot="expert", condition="demo", episodes=demonstrations, run_dir=root / "train", config_path=config)
-        trained = run_episodes(cfg, demo_opts)
+        demo_opts = RunOptions(pilot="expert", condition="demo", episodes=demonstrations, run_dir=root / "train",
+                               config_path=config)
+        trained = run_episodes(cfg, demo_opts, control=recorder)
         last_episode = trained.records[-1].episode  # a resumed --run-dir numbers episodes on
         last = trained.run_dir / "checkpoints" / f"episode_{last_episode:03d}.npz"
         if interventions:
             int_opts = RunOptions(pilot="expert", condition="int", episodes=interventions, run_dir=root / "train",
                                   checkpoint=last, config_path=config, seed=cfg.session.seed + last_episode + 1,
                                   first_episode=last_episode + 1)
-            more = run_episodes(cfg, int_opts)
+            more = run_episodes(cfg, int_opts, control=recorder)
             trained.records += more.records
             trained.dataset_size = more.dataset_size
             last = more.run_dir / "checkpoints" / f"episode_{more.records[-1].episode:03d}.npz"
-        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config)
+        if recorder is not None:
+            write_pictures(recorder, trained, cfg, "demo")
+        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config, pictures)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:
@@ -238,6 +248,54 @@ def demo(
     typer.echo(json.dumps({"human_samples": trained.dataset_size, "train_episodes": len(trained.records),
                            "eval_episodes": report["episodes"], "eval_successes": report["successes"],
                            "success_rate": report["success_rate"], "final_checkpoint": str(last)}))
+
+
+@app.command()
+def console(
+    connect: ConnectOpt = None,
+    simulator: SimulatorOpt = None,
+    host: Annotated[str, typer.Option(help="address the page is served on (127.0.0.1: this machine only)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port (0: any free port)")] = 8765,
+    config: ConfigOpt = None,
+    seed: SeedOpt = None,
+    run_dir: RunDirOpt = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), colf://host:port, device index, file or URL')] = None,
+    camera_rate: Annotated[float, typer.Option("--camera-rate", min=1.0, help="frames per second of our SITL's camera for the page")] = 35.0,
+    start: Annotated[str | None, typer.Option("--start", help="start a run at once: CONDITION:EPISODES, e.g. col:8 (else press Start in the page)")] = None,
+    learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
+    verbose: VerboseOpt = False,
+) -> None:
+    """The pilot console in a browser: see the camera, fly with a gamepad, intervene, watch the policy learn.
+
+    Serves a page at http://HOST:PORT/ and flies the SITL (started in real time for each run) or
+    the vehicle of --connect. The page's gamepad (Xbox layout) or keyboard is the person's input."""
+    _setup(verbose)
+    from companion.app import default_run_dir
+    from companion.console.server import run_console
+    from companion.console.session import ConsoleOptions, ConsoleSession
+
+    try:
+        cfg = _load(config)
+        if camera is not None:
+            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
+        autostart = None
+        if start is not None:
+            cond, _, count = start.partition(":")
+            if cond not in ("demo", "int", "col") or not count.isdigit() or int(count) < 1:
+                raise typer.BadParameter(f"--start takes CONDITION:EPISODES with demo, int or col, got {start!r}")
+            autostart = (cond, int(count))
+        opts = ConsoleOptions(run_dir=run_dir or default_run_dir(cfg, "console"), connection=connect, simulator=simulator,
+                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn)
+
+        def ready(url: str) -> None:
+            typer.echo(f"CONSOLE {url}", err=False)
+            typer.echo(f"open {url} in a browser; runs write to {opts.run_dir}; Ctrl-C stops", err=True)
+
+        run_console(lambda publish, frame: ConsoleSession(cfg, opts, publish, frame), host, port, ready, autostart)
+    except ColError as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise _fail(ColError(f"cannot serve the console on {host}:{port}: {exc}; choose another --port")) from None
 
 
 @app.command()

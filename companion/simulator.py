@@ -30,6 +30,7 @@ class SimulatorClient:
     def __init__(self, host: str, port: int, timeout_s: float = 10.0, token: str | None = None) -> None:
         """``token``: the SITL's control token, when it listens beyond loopback (docs/reliability.md)."""
         self._auth = {"token": token} if token else {}
+        self.address = f"{host}:{port}"
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout_s)
         except OSError as exc:

@@ -63,6 +63,8 @@ def build_config(
     control_port: int | None = None,
     no_camera: bool = False,
     autopilot: str | None = None,
+    camera_rate_hz: float | None = None,
+    rtp: str | None = None,
 ) -> SitlConfig:
     """Apply command-line overrides to a config, re-validating the result."""
     data = base.model_dump()
@@ -84,6 +86,10 @@ def build_config(
         data["camera"]["enabled"] = False
     if autopilot is not None:
         data["personality"]["autopilot"] = autopilot
+    if camera_rate_hz is not None:
+        data["camera"]["stream_rate_hz"] = camera_rate_hz
+    if rtp is not None:
+        data["network"]["rtp_video"] = rtp
     from colcommon.configio import build
 
     return build(SitlConfig, data, "command-line options")
@@ -101,6 +107,8 @@ def run(
     control_port: Annotated[int | None, typer.Option(help="control surface TCP port (0 = any free)")] = None,
     no_camera: Annotated[bool, typer.Option("--no-camera", help="do not render or serve the camera")] = False,
     autopilot: Annotated[str | None, typer.Option(help="personality: px4 (default; lockstep possible) or ardupilot (ArduCopter modes, GUIDED; real time only)")] = None,
+    camera_rate: Annotated[float | None, typer.Option("--camera-rate", min=0.1, help="real time: camera frames per second of simulation time (35 for a person's view)")] = None,
+    rtp: Annotated[str | None, typer.Option("--rtp", help="also send the camera as H.264 over RTP to HOST:PORT (QGroundControl: 127.0.0.1:5600)")] = None,
     duration: Annotated[float | None, typer.Option(help="stop after this much simulation time (s)")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log events")] = False,
     exit_with_parent: Annotated[bool, typer.Option("--exit-with-parent", help="stop when the process that started it dies (Linux)")] = False,
@@ -115,7 +123,7 @@ def run(
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
     try:
         cfg = build_config(load_sitl_config(config), clock, speed, seed, udp, tcp, camera_port, control_port, no_camera,
-                           autopilot)
+                           autopilot, camera_rate, rtp)
         if host is not None:
             cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"host": host})})
         key = read_key(signing_key) if signing_key is not None else None

@@ -39,11 +39,16 @@ class NetworkConfig(Section):
     camera_port: int = Field(5600, ge=0, le=65535)
     control_port: int = Field(14600, ge=0, le=65535)
     system_id: int = Field(1, ge=1, le=255)
+    rtp_video: str = Field("", description="HOST:PORT to send the camera to as H.264 over RTP (QGroundControl: 127.0.0.1:5600); empty = off")
 
     @model_validator(mode="after")
     def _pairs(self) -> NetworkConfig:
         if len(self.udp_local_ports) != len(self.udp_remote_ports):
             raise ValueError("udp_local_ports and udp_remote_ports must pair up one to one")
+        if self.rtp_video:
+            from sitl.rtp import parse_destination
+
+            parse_destination(self.rtp_video)
         return self
 
 

@@ -29,6 +29,7 @@ class CameraInfo:
     height_px: int
     hfov_deg: float
     framerate_hz: float
+    rtp_uri: str | None = None  # the H.264/RTP stream for ground stations, if sent
 
 
 @dataclass
@@ -175,7 +176,11 @@ class MessageHandler:
             if msg_id == M.MAVLINK_MSG_ID_CAMERA_INFORMATION:
                 extra, result = [Outgoing(CAMERA, self._camera_information())], M.MAV_RESULT_ACCEPTED
             elif msg_id == M.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION:
-                extra, result = [Outgoing(CAMERA, self._video_stream_information())], M.MAV_RESULT_ACCEPTED
+                streams = self._video_streams_information()
+                wanted = int(p[1]) if math.isfinite(p[1]) else 0  # param2: stream id, 0 = all
+                chosen = [m for m in streams if wanted in (0, m.stream_id)]
+                result = M.MAV_RESULT_ACCEPTED if chosen else M.MAV_RESULT_DENIED
+                extra = [Outgoing(CAMERA, m) for m in chosen]
             else:
                 result = M.MAV_RESULT_DENIED
         ack = Outgoing(CAMERA, M.MAVLink_command_ack_message(cmd, result, 0, 0, *sender))
@@ -193,13 +198,22 @@ class MessageHandler:
             sensor_h_mm, sensor_v_mm, c.width_px, c.height_px, 0, flags, 0, b"",
         )
 
-    def _video_stream_information(self) -> mavlink.MAVLink_message:
+    def _video_streams_information(self) -> list[mavlink.MAVLink_message]:
+        """Stream 1: the colf:// frame stream (the companion's); stream 2, when sent: H.264 over
+        RTP/UDP for ground stations."""
         c = self.camera
         assert c is not None
-        return M.MAVLink_video_stream_information_message(
-            1, 1, M.VIDEO_STREAM_TYPE_TCP_MPEG, M.VIDEO_STREAM_STATUS_FLAGS_RUNNING, c.framerate_hz,
+        count = 2 if c.rtp_uri else 1
+        running = M.VIDEO_STREAM_STATUS_FLAGS_RUNNING
+        streams = [M.MAVLink_video_stream_information_message(
+            1, count, M.VIDEO_STREAM_TYPE_TCP_MPEG, running, c.framerate_hz,
             c.width_px, c.height_px, 0, 0, int(round(c.hfov_deg)), b"downward", c.uri.encode(),
-        )
+        )]
+        if c.rtp_uri:
+            streams.append(M.MAVLink_video_stream_information_message(
+                2, count, M.VIDEO_STREAM_TYPE_RTPUDP, running, c.framerate_hz, c.width_px, c.height_px, 0, 0,
+                int(round(c.hfov_deg)), b"downward-h264", c.rtp_uri.encode(), M.VIDEO_STREAM_ENCODING_H264))
+        return streams
 
 
 def _param_name(raw: str | bytes) -> str:

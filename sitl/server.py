@@ -269,7 +269,9 @@ class SitlServer:
         self.camera = self._open_camera() if cfg.camera.enabled else None
         cam_info = None
         if self.camera is not None:
-            cam_info = CameraInfo(self.camera.server.uri, cfg.camera.width_px, cfg.camera.height_px, cfg.camera.hfov_deg, cfg.clock.frame_rate_hz)
+            rtp = self.camera.rtp
+            cam_info = CameraInfo(self.camera.server.uri, cfg.camera.width_px, cfg.camera.height_px, cfg.camera.hfov_deg,
+                                  cfg.clock.frame_rate_hz, rtp.uri if rtp is not None else None)
         self.handler = MessageHandler(self.vehicle, self.scheduler, cam_info)
         self._next_camera_heartbeat_s = 0.0
 
@@ -285,6 +287,7 @@ class SitlServer:
             "control": self.control_listener.getsockname()[1],
             "camera": self.camera.server.port if self.camera else None,
             "camera_uri": self.camera.server.uri if self.camera else None,
+            "rtp_video": self.cfg.network.rtp_video or None,
             "clock": self.cfg.clock.mode,
         }
 
@@ -644,6 +647,12 @@ class _CameraFeed:
         self.frame_number = 0
         self.interval_s = 1.0 / cfg.camera.stream_rate_hz
         self._next_s = 0.0
+        self.rtp = None
+        if cfg.network.rtp_video:
+            from sitl.rtp import RtpVideoSender
+
+            rate = cfg.camera.stream_rate_hz if cfg.clock.mode == "realtime" else cfg.clock.frame_rate_hz
+            self.rtp = RtpVideoSender(cfg.network.rtp_video, cfg.camera.width_px, cfg.camera.height_px, rate)
 
     def publish_if_due(self, blocking: bool) -> None:
         """Real time: frames on their own clock (stream_rate_hz of simulation time)."""
@@ -655,11 +664,17 @@ class _CameraFeed:
     def publish(self, blocking: bool) -> None:
         from sitl.frames import Frame
 
-        if self.server.client_count == 0:
+        rtp = self.rtp if self.rtp is not None and self.rtp.alive else None
+        if self.server.client_count == 0 and rtp is None:
             return
         image = render_frame(self.renderer, self.vehicle)
-        self.server.publish(Frame(self.frame_number, self.vehicle.time_boot_ms, image), blocking=blocking)
+        if self.server.client_count:
+            self.server.publish(Frame(self.frame_number, self.vehicle.time_boot_ms, image), blocking=blocking)
+        if rtp is not None:
+            rtp.publish(image)
         self.frame_number += 1
 
     def close(self) -> None:
         self.server.close()
+        if self.rtp is not None:
+            self.rtp.close()

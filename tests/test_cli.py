@@ -79,18 +79,18 @@ def test_col_demo_in_a_resumed_run_folder_continues_from_its_own_episodes(tmp_pa
     calls: list[RunOptions] = []
     evaluated: list[Path] = []
 
-    def fake_run_episodes(cfg, opts, on_episode=None):  # type: ignore[no-untyped-def]
+    def fake_run_episodes(cfg, opts, on_episode=None, **hooks):  # type: ignore[no-untyped-def]
         calls.append(opts)
         first = opts.first_episode or 6
         return RunResult(opts.run_dir, [_record(first + k) for k in range(opts.episodes)], dataset_size=100)
 
-    def fake_evaluate(cfg, checkpoint, episodes, seed, run_dir, config):  # type: ignore[no-untyped-def]
+    def fake_evaluate(cfg, checkpoint, episodes, seed, run_dir, config, pictures=False):  # type: ignore[no-untyped-def]
         evaluated.append(checkpoint)
         return {"episodes": episodes, "successes": episodes, "success_rate": 1.0, "ci95": [0.7, 1.0]}
 
     monkeypatch.setattr("companion.app.run_episodes", fake_run_episodes)
     monkeypatch.setattr(cli, "evaluate", fake_evaluate)
-    result = CliRunner().invoke(cli.app, ["demo", "--run-dir", str(tmp_path), "--eval-episodes", "1"])
+    result = CliRunner().invoke(cli.app, ["demo", "--run-dir", str(tmp_path), "--eval-episodes", "1", "--no-pictures"])
     assert result.exit_code == 0, result.output
     demo_opts, int_opts = calls
     assert int_opts.checkpoint == tmp_path / "train" / "checkpoints" / "episode_008.npz"

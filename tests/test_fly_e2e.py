@@ -94,6 +94,18 @@ def test_col_fly_expert_three_episodes_writes_a_complete_run(tmp_path: Path) -> 
     records = check_run_folder(tmp_path / "run", summary, episodes=3)
     assert summary["successes"] >= 2, landing_report(records)
     assert all(r["outcome"] == "touchdown" for r in records), landing_report(records)
+    check_pictures(tmp_path / "run", records)
+
+
+def check_pictures(run_dir: Path, records: list[dict[str, Any]]) -> None:
+    """flight.png, and the last episode's video: one frame with its HUD per control step."""
+    av = pytest.importorskip("av")
+    assert (run_dir / "flight.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    videos = sorted(p.name for p in run_dir.glob("episode_*.mp4"))
+    assert videos == [f"episode_{records[-1]['episode']:03d}.mp4"]
+    with av.open(str(run_dir / videos[0])) as container:
+        frames = list(container.decode(video=0))
+    assert len(frames) == records[-1]["steps"] and (frames[0].width, frames[0].height) == (640, 480)
 
 
 @pytest.mark.slow

@@ -2,7 +2,10 @@
 
 The one place where blending happens. The decision takes effect in the same tick as the
 input: the step where the override becomes held already uses the person's command. Only the
-person's commands are ever recorded, tagged by the session's phase.
+person's commands are ever recorded, tagged by the session's phase. When the person is in
+charge but their input is lost (``HumanCommand.hold``), the vehicle hovers (neutral sticks),
+nothing is recorded and the policy does not take over: it flies again only when the person
+lets go explicitly.
 """
 
 from __future__ import annotations
@@ -81,6 +84,9 @@ class Arbiter:
 
     @staticmethod
     def _choose(phase: Phase, human: HumanCommand, policy_cmd: JoystickCommand) -> Decision:
+        person_in_charge = phase is Phase.DEMONSTRATION or (phase is Phase.INTERVENTION and human.override_held)
+        if person_in_charge and human.hold:  # their input is gone: hover, record nothing
+            return Decision(JoystickCommand.neutral(), "human", False, None)
         if phase is Phase.DEMONSTRATION:
             return Decision(human.command, "human", True, "demonstration")
         if phase is Phase.INTERVENTION and human.override_held:

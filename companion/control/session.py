@@ -20,7 +20,7 @@ import numpy as np
 
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import SessionConfig
-from companion.control.arbiter import Arbiter, Phase
+from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
 from companion.errors import ColError, LinkError, LinkLost
@@ -31,6 +31,7 @@ from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.setpoints import VelocitySetpoint
 from companion.simulator import SimulatorClient
+from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,31 @@ class PolicyRunner(Protocol):
 
 
 @dataclass(frozen=True)
+class StepView:
+    """What one control step saw and did, for someone watching (a console, a video)."""
+
+    episode: int
+    step: int
+    phase: Phase
+    observation: Observation
+    decision: Decision
+    setpoint: VelocitySetpoint
+    policy_version: int | None
+    human_override: bool
+    human_hold: bool
+
+
+class EpisodeControl(Protocol):
+    """An operator's hand on a running session (the console): watches each step and may end
+    the episode or the run. ``run`` calls ``end_requested`` every step; a reason ends the
+    episode now with that outcome."""
+
+    def on_step(self, view: StepView) -> None: ...
+
+    def end_requested(self) -> str | None: ...
+
+
+@dataclass(frozen=True)
 class EpisodeRecord:
     """One JSON line per episode (runs/<run>/episodes.jsonl)."""
 
@@ -61,7 +87,7 @@ class EpisodeRecord:
     interventions: int
     intervention_s: float
     intervention_durations_s: tuple[float, ...]
-    outcome: str  # touchdown | timeout | fence | link_lost | error
+    outcome: str  # touchdown | timeout | fence | link_lost | error | stopped (by the operator)
     success: bool | None
     touchdown_distance_m: float | None
     touchdown_speed_m_s: float | None
@@ -117,6 +143,7 @@ class EpisodeParts:
     runner: PolicyRunner | None = None
     dataset: HumanDataset | None = None
     dialect: Dialect | None = None  # None: from the vehicle's HEARTBEAT
+    control: EpisodeControl | None = None
 
 
 class EpisodeRunner:
@@ -321,6 +348,10 @@ class EpisodeRunner:
             if step > 0 and snap.landed_state == "ON_GROUND":
                 outcome = "touchdown"
                 break
+            ended = self.p.control.end_requested() if self.p.control is not None else None
+            if ended is not None:
+                outcome = ended
+                break
             steps = step + 1
             outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
             if outcome_now is not None:
@@ -378,6 +409,9 @@ class EpisodeRunner:
             source = Source.DEMONSTRATION if decision.tag == "demonstration" else Source.INTERVENTION
             self.p.dataset.append(Sample(episode, step, (obs.time_boot_ms - t0_ms) / 1000.0, source, vector,
                                          decision.command.to_array()))
+        if self.p.control is not None:
+            self.p.control.on_step(StepView(episode, step, phase, obs, decision, sp, version,
+                                            human.override_held, human.hold))
         return None, version
 
     def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,

@@ -19,10 +19,16 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class HumanCommand:
-    """The person's sticks and whether they hold the override (take-over) trigger."""
+    """The person's sticks and whether they hold the override (take-over) trigger.
+
+    ``hold``: the source can no longer vouch for the sticks (a console's page lost its link
+    while the person was flying): while the person is in charge the vehicle holds position and
+    nothing is recorded; the policy does not take over because of it.
+    """
 
     command: JoystickCommand
     override_held: bool
+    hold: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.command, JoystickCommand):
@@ -31,6 +37,8 @@ class HumanCommand:
             raise TypeError(
                 f"HumanCommand.override_held must be a bool, got {self.override_held!r}"
             )
+        if not isinstance(self.hold, bool):
+            raise TypeError(f"HumanCommand.hold must be a bool, got {self.hold!r}")
 
     @classmethod
     def neutral(cls) -> HumanCommand:

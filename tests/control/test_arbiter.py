@@ -102,3 +102,33 @@ def test_decision_refuses_inconsistent_combinations() -> None:
         Decision(POLICY, "policy", False, "demonstration")
     with pytest.raises(ValueError, match="source"):
         Decision(PERSON, "pilot", False, None)  # type: ignore[arg-type]
+
+
+def lost(held: bool) -> HumanCommand:
+    """A source that can no longer vouch for the sticks (a console page gone silent)."""
+    return HumanCommand(PERSON, override_held=held, hold=True)
+
+
+@pytest.mark.parametrize("phase,held", [(Phase.DEMONSTRATION, False), (Phase.DEMONSTRATION, True),
+                                        (Phase.INTERVENTION, True)])
+def test_a_person_in_charge_whose_input_is_lost_hovers_unrecorded(phase: Phase, held: bool) -> None:
+    d = Arbiter().decide(phase, lost(held), POLICY)
+    assert d == Decision(JoystickCommand.neutral(), "human", False, None)
+
+
+def test_a_lost_input_without_override_leaves_the_flying_policy_alone() -> None:
+    d = Arbiter().decide(Phase.INTERVENTION, lost(False), POLICY)
+    assert d == Decision(POLICY, "policy", False, None)
+
+
+def test_a_hold_inside_an_intervention_neither_ends_it_nor_records_it() -> None:
+    a = Arbiter()
+    for h in (human(True), lost(True), lost(True), human(True), human(False)):
+        a.decide(Phase.INTERVENTION, h, POLICY)
+    s = a.summary()
+    assert (s.interventions, s.durations_steps, s.recorded_steps, s.human_steps) == (1, (4,), 2, 4)
+
+
+def test_hold_must_be_a_bool() -> None:
+    with pytest.raises(TypeError, match="hold"):
+        HumanCommand(PERSON, override_held=False, hold=1)  # type: ignore[arg-type]

@@ -1,0 +1,151 @@
+"""``col console`` driven by a person's stand-in in a real headless browser (Debian's chromium
+through Playwright): the page loads, camera frames are drawn, an emulated Xbox pad (the page's
+``navigator.getGamepads``) pushes the right stick forward and holds the trigger, the SITL's
+ground truth shows the vehicle moving forward, and exactly the steps flown by the person are
+in ``human.csv``, tagged as interventions."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from companion.simulator import SimulatorClient
+
+REPO = Path(__file__).resolve().parents[2]
+CHROMIUM = os.environ.get("COL_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+# An Xbox pad in the Gamepad API's standard layout whose state the test sets through window.__pad.
+FAKE_PAD = """
+window.__pad = {axes: [0, 0, 0, 0], buttons: new Array(17).fill(0)};
+navigator.getGamepads = () => [{
+  id: "Emulated Xbox pad (STANDARD GAMEPAD)", index: 0, connected: true, mapping: "standard",
+  timestamp: performance.now(), axes: window.__pad.axes.slice(),
+  buttons: window.__pad.buttons.map((v) => ({pressed: v > 0.5, touched: v > 0, value: v})),
+}];
+"""
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+
+
+def _browser_or_skip() -> None:
+    if not os.path.exists(CHROMIUM):
+        pytest.skip("chromium is not installed (Debian: apt-get install -y chromium); the console's "
+                    "browser test needs a real browser")
+    pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install '.[test]')")
+
+
+@pytest.fixture
+def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+    """A running ``col console`` on a free port: (its URL, its run folder)."""
+    run_dir = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir)],
+                            stdout=subprocess.PIPE, stderr=(tmp_path / "console.log").open("wb"), env=env, cwd=REPO)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().decode()
+        assert line.startswith("CONSOLE http://127.0.0.1:"), f"no URL from col console: {line!r} " + (tmp_path / "console.log").read_text()
+        yield line.split()[1], run_dir
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+
+
+def _wait(page, expression: str, timeout_s: float) -> object:  # type: ignore[no-untyped-def]
+    page.wait_for_function(expression, timeout=timeout_s * 1000)
+    return page.evaluate(expression)
+
+
+def _forward_ne(yaw_rad: float) -> tuple[float, float]:
+    return math.cos(yaw_rad), math.sin(yaw_rad)
+
+
+def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded(console, tmp_path: Path) -> None:
+    _browser_or_skip()
+    from playwright.sync_api import sync_playwright
+
+    url, run_dir = console
+    with sync_playwright() as pw:
+        context = pw.chromium.launch_persistent_context(
+            str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS,
+            viewport={"width": 1280, "height": 900})
+        try:
+            page = context.pages[0] if context.pages else context.new_page()
+            page.add_init_script(FAKE_PAD)
+            page.goto(url)
+            _wait(page, "window.colConsole.hello !== null", 20)
+            assert "gamepad: Emulated Xbox pad" in page.inner_text("#pad-state")
+
+            # as a person would: choose Int, one episode, press Start
+            page.select_option("#condition", "int")
+            page.fill("#episodes", "1")
+            page.click("#start")
+            _wait(page, "window.colConsole.lastStep !== null && window.colConsole.lastStep.step >= 5", 90)
+            step = page.evaluate("window.colConsole.lastStep")
+            assert step["phase"] == "intervention" and step["who"] == "policy"
+
+            frames0 = page.evaluate("window.colConsole.framesDrawn")
+            time.sleep(2.0)
+            frames = page.evaluate("window.colConsole.framesDrawn") - frames0
+            assert frames >= 10, f"only {frames} camera frames drawn in 2 s"
+
+            sim = SimulatorClient(*page.evaluate("window.colConsole.status.simulator").split(":"))
+            try:
+                before = sim.truth()
+                # right stick forward (y = -0.8 is up) with the right trigger held
+                page.evaluate("window.__pad.axes[3] = -0.8; window.__pad.buttons[7] = 1.0")
+                _wait(page, "window.colConsole.lastStep.who === 'person'", 10)
+                time.sleep(3.0)
+                after = sim.truth()
+                page.evaluate("window.__pad.axes[3] = 0; window.__pad.buttons[7] = 0")
+                _wait(page, "window.colConsole.lastStep.who === 'policy'", 10)
+            finally:
+                sim.close()
+            yaw = before["attitude_rad"][2]
+            fwd = _forward_ne(yaw)
+            dn = after["vehicle_ned"][0] - before["vehicle_ned"][0]
+            de = after["vehicle_ned"][1] - before["vehicle_ned"][1]
+            along, across = dn * fwd[0] + de * fwd[1], -dn * fwd[1] + de * fwd[0]
+            assert along > 1.5, f"pushed forward for 3 s but moved only {along:.2f} m forward ({dn:.2f} N, {de:.2f} E)"
+            assert abs(across) < 0.5 * along
+
+            page.click("#stop")
+            _wait(page, "window.colConsole.status.run.state === 'finished'", 60)
+            _wait(page, "window.colConsole.records.length === 1", 10)
+            seen = page.evaluate("window.colConsole.steps")
+            record = page.evaluate("window.colConsole.records[0]")
+            page.screenshot(path=str(tmp_path / "console.png"))
+        finally:
+            context.close()
+
+    person_steps = sorted(s["step"] for s in seen if s["who"] == "person")
+    assert person_steps, "the page never showed the person flying"
+    assert all(s["recorded"] and s["tag"] == "intervention" for s in seen if s["who"] == "person")
+    assert not any(s["recorded"] for s in seen if s["who"] != "person")
+    with (run_dir / "human.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(int(r["step"]) for r in rows) == person_steps
+    assert {r["source"] for r in rows} == {"intervention"}
+    taken = sorted(s["step"] for s in seen if s["who"] in ("person", "hold"))  # a busy machine may hold a tick
+    assert taken == list(range(taken[0], taken[-1] + 1)), "one continuous intervention"
+    assert len(person_steps) >= 20  # 3 s held at 10.5 Hz, with slack for a busy machine
+    for r in rows:  # the stick as pushed: pitch forward only (deadband and expo act later)
+        assert float(r["pitch"]) == pytest.approx(0.8, abs=1e-6)
+        assert float(r["roll"]) == float(r["yaw"]) == float(r["throttle"]) == 0.0
+    assert record["interventions"] == 1 and record["human_samples"] == len(rows)
+    assert record["outcome"] in ("stopped", "touchdown", "timeout")
