@@ -20,7 +20,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from colcommon.configio import Section, build, read_toml, section
-from companion.config import CompanionConfig, load_companion_config
+from companion.config import AskConfig, CompanionConfig, load_companion_config
 from companion.errors import ConfigError
 from companion.inputs.synthetic import PROFILES
 
@@ -192,9 +192,21 @@ class ExperimentSetup:
         exp = self.exp
         settings = {"eval_runs": exp.eval_runs, "eval_seed": exp.eval_seed,
                     "updates_per_step": exp.updates_per_step,
-                    "companion": self.companion.model_dump(mode="json"), "sitl": self.sitl_tables}
+                    "companion": _fingerprinted(self.companion), "sitl": self.sitl_tables}
         blob = json.dumps(settings, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _fingerprinted(companion: CompanionConfig) -> dict[str, object]:
+    """The companion's settings, leaving out those added after results were committed while
+    they are at their defaults (the ensemble size, asking for help): those results keep their
+    fingerprint, and a setting that does change them still changes it."""
+    data = companion.model_dump(mode="json")
+    if data["learner"].get("ensemble_members") == 1:
+        del data["learner"]["ensemble_members"]
+    if data.get("ask") == AskConfig().model_dump(mode="json"):
+        del data["ask"]
+    return data
 
 
 def load_experiment(path: str | Path) -> ExperimentSetup:
