@@ -23,6 +23,7 @@ from typing import Literal
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
+from companion.control.ask import HelpAsker
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.errors import ColError, ConfigError
@@ -42,9 +43,9 @@ from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 
 log = logging.getLogger(__name__)
-Condition = Literal["demo", "int", "col", "eval"]
+Condition = Literal["demo", "int", "col", "ask", "eval"]
 PilotKind = Literal["expert", "manual", "gamepad", "none"]
-CONDITIONS = ("demo", "int", "col", "eval")
+CONDITIONS = ("demo", "int", "col", "ask", "eval")
 
 
 def phases_for(condition: str, episodes: int) -> list[Phase]:
@@ -53,7 +54,7 @@ def phases_for(condition: str, episodes: int) -> list[Phase]:
         return [Phase.DEMONSTRATION] * episodes
     if condition == "int":
         return [Phase.INTERVENTION] * episodes
-    if condition == "col":
+    if condition in ("col", "ask"):  # ask: CoL's schedule, the interventions asked for
         half = episodes // 2
         return [Phase.DEMONSTRATION] * half + [Phase.INTERVENTION] * (episodes - half)
     if condition == "eval":
@@ -89,9 +90,13 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None
     if kind == "none":
         return NoHuman()
     if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2"
-        from companion.inputs.synthetic import profile_named, synthetic_pilot
+        from companion.inputs.synthetic import on_call_pilot, profile_named, synthetic_pilot
 
-        return synthetic_pilot(profile_named(kind.partition(":")[2]), cfg.pilot, cfg.session.seed)
+        profile = profile_named(kind.partition(":")[2])
+        if cfg.ask.enabled:  # asked for help: the participant watches only when asked
+            steps = round(cfg.ask.synthetic_response_s * cfg.session.control_rate_hz)
+            return on_call_pilot(profile, cfg.pilot, cfg.session.seed, steps)
+        return synthetic_pilot(profile, cfg.pilot, cfg.session.seed)
     raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none or synthetic:P1..P4")
 
 
@@ -250,6 +255,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     """
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
+    cfg = asking_config(cfg, opts.condition)
     synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
     lockstep = opts.lockstep if opts.lockstep is not None else (synthetic and not opts.connection)
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
@@ -281,6 +287,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             cfg=cfg.session, lockstep=lockstep, simulator=simulator,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
         )
+        if cfg.ask.enabled:
+            parts.asker = HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz)
         episode_runner = EpisodeRunner(parts)
         seed0 = cfg.session.seed + (first - opts.first_episode) if opts.seed is None else opts.seed
         with (run_dir / "episodes.jsonl").open("a") as log_file:
@@ -297,6 +305,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                                     extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
                 log_file.write(json.dumps(record.to_json_dict()) + "\n")
                 log_file.flush()
+                if parts.asker is not None and opts.record:
+                    _write_trace(run_dir / "ask_trace.jsonl", record, episode_runner.trace)
                 result.records.append(record)
                 if on_episode is not None:
                     on_episode(record)
@@ -308,6 +318,26 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.latencies_s = episode_runner.step_latencies_s
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     return result
+
+
+def asking_config(cfg: CompanionConfig, condition: str) -> CompanionConfig:
+    """The config with asking for help on for the ``ask`` condition (which needs an ensemble)."""
+    if condition != "ask" or cfg.ask.enabled:
+        return cfg
+    if cfg.learner.ensemble_members < 2:
+        raise ConfigError("the ask condition needs an ensemble to measure disagreement: set "
+                          "[companion.learner] ensemble_members to 2 or more (5 is usual)")
+    return cfg.model_copy(update={"ask": cfg.ask.model_copy(update={"enabled": True})})
+
+
+def _write_trace(path: Path, record: EpisodeRecord, trace: list[tuple[int, float, str]]) -> None:
+    """One line per episode: the disagreement and who flew at every step, with the threshold."""
+    line = {"episode": record.episode, "phase": record.phase, "threshold": record.ask_threshold,
+            "step": [t[0] for t in trace],
+            "score": [None if not math.isfinite(t[1]) else round(t[1], 8) for t in trace],
+            "who": [t[2] for t in trace]}
+    with path.open("a") as fh:
+        fh.write(json.dumps(line) + "\n")
 
 
 def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:
