@@ -9,9 +9,11 @@ participant and replicate seed at one count, as in the paired completion table.
 
 from __future__ import annotations
 
+import json
 import math
 import statistics
 from collections.abc import Sequence
+from pathlib import Path
 
 from companion.experiment.results import TrialResult
 from companion.statistics import bootstrap_mean_ci
@@ -104,3 +106,61 @@ def ask_markdown(results: Sequence[TrialResult]) -> list[str]:
               f"its 95 % BCa bootstrap interval (seed {REPORT_SEED}). The completion difference Ask − CoL "
               "is in the paired table above.", ""]
     return lines
+
+
+WHO_COLOURS = {"policy": "#66c2a5", "human": "#fc8d62", "hold": "#e7298a", "land": "#555555"}
+
+
+def plot_ask_trace(trace_path: Path, episode: int | None, out: Path) -> dict[str, object]:
+    """A plot of one episode of ``ask_trace.jsonl``: the disagreement against the threshold,
+    and who flew (policy, person, holding for an answer); the first intervention-phase
+    episode with a request when ``episode`` is None. Returns what it plotted."""
+    lines = [json.loads(t) for t in trace_path.read_text().splitlines() if t.strip()]
+    if episode is None:
+        chosen = next((t for t in lines if t["phase"] == "intervention" and "hold" in t["who"]), None)
+    else:
+        chosen = next((t for t in lines if t["episode"] == episode), None)
+    if chosen is None:
+        raise ValueError(f"{trace_path}: no such episode (or no intervention episode with a request)")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = chosen["step"]
+    scores = [math.nan if s is None else s for s in chosen["score"]]
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    ax.semilogy(steps, scores, color="black", lw=1, label="disagreement (ensemble action variance)")
+    if chosen["threshold"] is not None:
+        ax.axhline(chosen["threshold"], color="#e7298a", ls="--", lw=1, label="threshold")
+    low = min((s for s in scores if s > 0), default=1e-6) / 3
+    for who, colour in WHO_COLOURS.items():
+        xs = [s for s, w in zip(steps, chosen["who"], strict=True) if w == who]
+        if xs:
+            ax.scatter(xs, [low] * len(xs), marker="|", s=120, color=colour, label=f"flying: {who}")
+    ax.set_xlabel("control step (10.5 Hz)")
+    ax.set_ylabel("disagreement")
+    ax.set_title(f"{trace_path.parent.name}: episode {chosen['episode']} ({chosen['phase']})")
+    ax.legend(fontsize=7, loc="upper right", ncol=2)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return {"episode": chosen["episode"], "steps": len(steps),
+            "who": {w: chosen["who"].count(w) for w in WHO_COLOURS}, "threshold": chosen["threshold"]}
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """``python -m companion.experiment.ask_report TRACE [--episode N] --out PNG``"""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="plot one episode of an ask_trace.jsonl (score, threshold, who flew)")
+    parser.add_argument("trace", type=Path)
+    parser.add_argument("--episode", type=int, default=None, help="default: the first intervention episode with a request")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    print(json.dumps(plot_ask_trace(args.trace, args.episode, args.out)))
+
+
+if __name__ == "__main__":
+    main()
