@@ -140,7 +140,8 @@ def plot_ask_trace(trace_path: Path, episode: int | None, out: Path) -> dict[str
             ax.scatter(xs, [low] * len(xs), marker="|", s=120, color=colour, label=f"flying: {who}")
     ax.set_xlabel("control step (10.5 Hz)")
     ax.set_ylabel("disagreement")
-    ax.set_title(f"{trace_path.parent.name}: episode {chosen['episode']} ({chosen['phase']})")
+    run = trace_path.parent.parent.name if trace_path.parent.name == "train" else trace_path.parent.name
+    ax.set_title(f"{run}: episode {chosen['episode']} ({chosen['phase']}), asking above the threshold")
     ax.legend(fontsize=7, loc="upper right", ncol=2)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -72,3 +72,20 @@ def test_the_report_compares_ask_with_col_pair_by_pair(tmp_path: Path) -> None:
     report = write_report(results, tmp_path).read_text()
     assert "Asking for help: supervision" in report and "Ask − CoL" in report
     assert ask_markdown([r for r in results if r.trial.condition == "col"]) == []
+
+
+def test_the_trace_plot_picks_the_first_intervention_episode_with_a_request(tmp_path: Path) -> None:
+    from companion.experiment.ask_report import plot_ask_trace
+
+    trace = tmp_path / "train" / "ask_trace.jsonl"
+    trace.parent.mkdir()
+    lines = [{"episode": 0, "phase": "demonstration", "threshold": None, "step": [0, 1], "score": [None, None],
+              "who": ["human", "human"]},
+             {"episode": 1, "phase": "intervention", "threshold": 0.01, "step": [0, 1, 2], "score": [0.001, 0.02, 0.005],
+              "who": ["policy", "hold", "human"]}]
+    trace.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    got = plot_ask_trace(trace, None, tmp_path / "trace.png")
+    assert got["episode"] == 1 and got["who"] == {"policy": 1, "human": 1, "hold": 1, "land": 0}
+    assert (tmp_path / "trace.png").stat().st_size > 1000
+    with pytest.raises(ValueError):
+        plot_ask_trace(trace, 7, tmp_path / "none.png")
