@@ -172,8 +172,11 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         yield opts.connection, None
         return
     port = free_udp_port()
+    # In lockstep the SITL and the companion take turns, so a SITL niced below the companion
+    # gains nothing and, on a machine loaded by other work, starves both (at nice 19 beside
+    # nice-10 work its frames came seconds late): it runs at the companion's priority.
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed)
+                      seed=opts.seed, nice=0 if lockstep else 10)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:
