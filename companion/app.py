@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Literal, Protocol
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
+from companion.control.ask import HelpAsker
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
@@ -48,9 +49,9 @@ if TYPE_CHECKING:
     from companion.pictures.recorder import FlightRecorder
 
 log = logging.getLogger(__name__)
-Condition = Literal["demo", "int", "col", "eval"]
+Condition = Literal["demo", "int", "col", "ask", "eval"]
 PilotKind = Literal["expert", "manual", "gamepad", "none"]
-CONDITIONS = ("demo", "int", "col", "eval")
+CONDITIONS = ("demo", "int", "col", "ask", "eval")
 
 
 def phases_for(condition: str, episodes: int) -> list[Phase]:
@@ -59,7 +60,7 @@ def phases_for(condition: str, episodes: int) -> list[Phase]:
         return [Phase.DEMONSTRATION] * episodes
     if condition == "int":
         return [Phase.INTERVENTION] * episodes
-    if condition == "col":
+    if condition in ("col", "ask"):  # ask: CoL's schedule, the interventions asked for
         half = episodes // 2
         return [Phase.DEMONSTRATION] * half + [Phase.INTERVENTION] * (episodes - half)
     if condition == "eval":
@@ -95,9 +96,13 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None
     if kind == "none":
         return NoHuman()
     if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2"
-        from companion.inputs.synthetic import profile_named, synthetic_pilot
+        from companion.inputs.synthetic import on_call_pilot, profile_named, synthetic_pilot
 
-        return synthetic_pilot(profile_named(kind.partition(":")[2]), cfg.pilot, cfg.session.seed)
+        profile = profile_named(kind.partition(":")[2])
+        if cfg.ask.enabled:  # asked for help: the participant watches only when asked
+            steps = round(cfg.ask.synthetic_response_s * cfg.session.control_rate_hz)
+            return on_call_pilot(profile, cfg.pilot, cfg.session.seed, steps)
+        return synthetic_pilot(profile, cfg.pilot, cfg.session.seed)
     raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none or synthetic:P1..P4")
 
 
@@ -187,8 +192,13 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
     extra = ["--signing-key", key_file] if key_file else []
     if opts.camera_rate_hz:
         extra += ["--camera-rate", str(opts.camera_rate_hz)]
+    # In lockstep the SITL and the companion take turns, so a SITL niced below the companion
+    # gains nothing and, on a machine loaded by other work, starves both (at nice 19 beside
+    # nice-10 work its frames came seconds late): it runs at the companion's priority. Nothing
+    # is lost by waiting for it either: at a load of 25-33 on 2 cores it took over 30 s to start.
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed, extra_args=extra or None)
+                      seed=opts.seed, extra_args=extra or None, nice=0 if lockstep else 10,
+                      timeout_s=120.0 if lockstep else 30.0)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:
@@ -290,6 +300,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     """
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
+    cfg = asking_config(cfg, opts.condition)
     synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
     own_lockstep = synthetic and not opts.connection and _sitl_autopilot(opts.config_path) == "px4"
     lockstep = opts.lockstep if opts.lockstep is not None else own_lockstep
@@ -325,6 +336,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
             control=control,
         )
+        if cfg.ask.enabled:
+            parts.asker = HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz)
         if control is not None:
             control.started(opened, learner, dataset)
         episode_runner = EpisodeRunner(parts)
@@ -348,6 +361,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                                     extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
                 log_file.write(json.dumps(record.to_json_dict()) + "\n")
                 log_file.flush()
+                if parts.asker is not None and opts.record:
+                    _write_trace(run_dir / "ask_trace.jsonl", record, episode_runner.trace)
                 result.records.append(record)
                 if on_episode is not None:
                     on_episode(record)
@@ -425,6 +440,26 @@ def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionCo
     except Exception as exc:  # pictures are a courtesy: the run's data is already safe
         log.warning("could not write the run's pictures: %r", exc)
     return written
+
+
+def asking_config(cfg: CompanionConfig, condition: str) -> CompanionConfig:
+    """The config with asking for help on for the ``ask`` condition (which needs an ensemble)."""
+    if condition != "ask" or cfg.ask.enabled:
+        return cfg
+    if cfg.learner.ensemble_members < 2:
+        raise ConfigError("the ask condition needs an ensemble to measure disagreement: set "
+                          "[companion.learner] ensemble_members to 2 or more (5 is usual)")
+    return cfg.model_copy(update={"ask": cfg.ask.model_copy(update={"enabled": True})})
+
+
+def _write_trace(path: Path, record: EpisodeRecord, trace: list[tuple[int, float, str]]) -> None:
+    """One line per episode: the disagreement and who flew at every step, with the threshold."""
+    line = {"episode": record.episode, "phase": record.phase, "threshold": record.ask_threshold,
+            "step": [t[0] for t in trace],
+            "score": [None if not math.isfinite(t[1]) else round(t[1], 8) for t in trace],
+            "who": [t[2] for t in trace]}
+    with path.open("a") as fh:
+        fh.write(json.dumps(line) + "\n")
 
 
 def _with_fit(record: EpisodeRecord, fit: Fit) -> EpisodeRecord:

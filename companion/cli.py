@@ -83,7 +83,7 @@ def fly(
     pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
-    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), eval (policy alone)")] = "demo",
+    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), ask (half each; the policy holds and asks for help when unsure, needs [companion.learner] ensemble_members >= 2), eval (policy alone)")] = "demo",
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,

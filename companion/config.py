@@ -145,6 +145,11 @@ class LearnerConfig(Section):
     gil_switch_interval_s: float = Field(
         0.001, gt=0, le=0.1, description="while the learner thread runs: bounds control's GIL wait"
     )
+    ensemble_members: int = Field(
+        1, ge=1, le=32,
+        description="K copies of the network, each on its own minibatches, flying their mean action; "
+        "1 = the paper's single network; asking for help ([companion.ask]) needs >= 2 (5 is usual)",
+    )
 
 
 class PilotConfig(Section):
@@ -233,6 +238,24 @@ class PilotConfig(Section):
         return self
 
 
+class AskConfig(Section):
+    """companion.ask: the policy holds and asks the person for help when its ensemble disagrees
+    (companion/control/ask.py, docs/ask-for-help.md)."""
+
+    enabled: bool = Field(False, description="ask in intervention episodes (needs learner.ensemble_members >= 2)")
+    target_rate: float = Field(
+        0.02, gt=0, lt=1,
+        description="threshold = the (1 - target_rate) quantile of the ensemble's disagreement on the "
+        "dataset's states, recalibrated at every episode start",
+    )
+    min_samples: int = Field(64, ge=1, description="no requests before the dataset holds this many samples")
+    answer_timeout_s: float = Field(15.0, gt=0, description="nobody took over this long after a request")
+    on_timeout: Literal["land", "hold"] = Field("land", description="then: land where it is, or keep holding")
+    rearm_s: float = Field(2.0, ge=0, description="after the person hands back, fly this long before asking again")
+    synthetic_response_s: float = Field(
+        1.0, ge=0, le=30, description="a synthetic participant starts looking this long after a request")
+
+
 class CompanionConfig(Section):
     link: LinkConfig = LinkConfig()
     commands: CommandsConfig = CommandsConfig()
@@ -241,6 +264,14 @@ class CompanionConfig(Section):
     perception: PerceptionConfig = PerceptionConfig()
     learner: LearnerConfig = LearnerConfig()
     pilot: PilotConfig = PilotConfig()
+    ask: AskConfig = AskConfig()
+
+    @model_validator(mode="after")
+    def _ask_needs_ensemble(self) -> CompanionConfig:
+        if self.ask.enabled and self.learner.ensemble_members < 2:
+            raise ValueError("[companion.ask] enabled needs an ensemble to measure disagreement: "
+                             "set [companion.learner] ensemble_members to 2 or more (5 is usual)")
+        return self
 
 
 def load_companion_config(path: str | Path | None = None) -> CompanionConfig:

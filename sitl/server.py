@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("sitl.server")
 M = mavlink
+FORWARDED = ("MANUAL_CONTROL", "STATUSTEXT")
 DETACH_AFTER_TIMEOUTS = 3
 MAX_TCP_BACKLOG_BYTES = 1 << 20
 CONTROL_REPLY_TIMEOUT_S = 1.0
@@ -473,8 +474,9 @@ class SitlServer:
         self._flush_all()
 
     def _forward(self, source: MavClient, msg: mavlink.MAVLink_message) -> None:
-        """Like PX4 with forwarding on: what one peer says reaches the other active peers."""
-        if msg.get_type() != "MANUAL_CONTROL":
+        """Like PX4 with forwarding on: what one peer says reaches the other active peers (a
+        ground station's joystick, and a companion's STATUSTEXT, e.g. its request for help)."""
+        if msg.get_type() not in FORWARDED:
             return
         data = msg.get_msgbuf()
         for c in self.clients:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
@@ -21,11 +22,13 @@ import numpy as np
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
+from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
 from companion.errors import ColError, LinkError, LinkLost
-from companion.inputs.base import HumanInput
+from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.ensemble import EnsembleSnapshot, disagreement
 from companion.learning.snapshot import PolicySnapshot
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
@@ -100,6 +103,15 @@ class EpisodeRecord:
     """After the episode (and the learner's between-episode updates): the policy's MSE on
     every human sample, and on the intervention samples alone (None: none recorded)."""
     loss_intervention: float | None = None
+    requests: int = 0
+    """Requests for help in this episode (``[companion.ask]``), and how many went unanswered."""
+    requests_unanswered: int = 0
+    supervised_steps: int = 0
+    """Steps the person had to watch: every step of a demonstration, and of an intervention
+    episode flown by a person who watches throughout; for a person who watches only when
+    asked, the steps from each request until they handed back."""
+    ask_threshold: float | None = None
+    """The disagreement threshold of this episode (None: not asking)."""
 
     def to_json_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -144,6 +156,10 @@ class EpisodeParts:
     dataset: HumanDataset | None = None
     dialect: Dialect | None = None  # None: from the vehicle's HEARTBEAT
     control: EpisodeControl | None = None
+    asker: HelpAsker | None = None
+    on_ask_event: Callable[[AskEvent], None] | None = None
+    """Told of every request, answer, hand-back (e.g. a console); the session itself logs
+    them, sends them as STATUSTEXT and tells the human input."""
 
 
 class EpisodeRunner:
@@ -173,6 +189,13 @@ class EpisodeRunner:
     def leave_safe(self) -> str:
         """The configured end-of-run state (land or hold), after a run or a failed episode."""
         return leave_safe(self.p.link, self.dialect, self.p.cfg.end_of_run)
+        self._hold_ned: tuple[float, float, float, float] | None = None
+        self._landing = False
+        self._ask_summary: AskSummary | None = None
+        self.trace: list[tuple[int, float, str]] = []
+        """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
+        if parts.asker is not None:
+            parts.asker.on_event = self._on_ask_event
 
     # ----- frames ----------------------------------------------------------------------------
     def _next_snapshot(self) -> VehicleSnapshot | None:
@@ -290,15 +313,17 @@ class EpisodeRunner:
         raise ColError(f"did not reach the start point {target.round(2).tolist()} within 60 s")
 
     # ----- the loop --------------------------------------------------------------------------
-    def _policy_command(self, obs_vector: np.ndarray) -> tuple[JoystickCommand, int | None]:
+    def _policy_command(self, obs_vector: np.ndarray) -> tuple[JoystickCommand, int | None, float]:
+        """The policy's command, its version and its disagreement (NaN: a single network)."""
         runner = self.p.runner
         if runner is None:
-            return JoystickCommand.neutral(), None
+            return JoystickCommand.neutral(), None, math.nan
         if runner.error is not None and not self._warned_learner:
             self._warned_learner = True
             log.error("learner failed (%s); flying the last good policy", runner.error)
         snap = runner.latest_snapshot
-        return self.p.mapper.command_from_values(snap.act(obs_vector)), snap.version
+        action, score = disagreement(snap, obs_vector)
+        return self.p.mapper.command_from_values(action), snap.version, score
 
     def run(self, episode: int, phase: Phase, seed: int | None) -> EpisodeRecord:
         """Fly one episode; never raises for what happens in flight (it is in the record)."""
@@ -306,6 +331,7 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
+        self._begin_asking(episode)
         try:
             first, notes = self._start(seed)
         except ColError as exc:  # refused reset, no OFFBOARD, lost vehicle: this episode only
@@ -333,6 +359,81 @@ class EpisodeRunner:
             self.leave_safe()
         except ColError as exc:  # no heartbeat yet: nothing is flying on our account
             log.error("could not leave the vehicle safe: %s", exc)
+        if self.p.asker is not None:
+            self._ask_summary = self.p.asker.end_episode(steps)
+            if self._ask_summary.unanswered:
+                notes.append("a request for help went unanswered: landed where it was")
+        return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
+
+    # ----- asking for help -------------------------------------------------------------------
+    def _begin_asking(self, episode: int) -> None:
+        """New episode: recalibrate the threshold on the dataset as it is now."""
+        self.trace = []
+        self._hold_ned, self._landing, self._ask_summary = None, False, None
+        asker = self.p.asker
+        if asker is None:
+            return
+        asker.begin_episode(episode)
+        snap = self.p.runner.latest_snapshot if self.p.runner is not None else None
+        if isinstance(snap, EnsembleSnapshot) and self.p.dataset is not None and len(self.p.dataset):
+            asker.calibrate(snap.scores(self.p.dataset.view().obs))
+        log.info("episode %d: asking for help above disagreement %.4g", episode, asker.threshold)
+
+    def _on_ask_event(self, event: AskEvent) -> None:
+        req = event.request
+        if self.p.on_ask_event is not None:
+            self.p.on_ask_event(event)
+        if event.kind == "request" and req is not None:
+            log.warning("asking for help (request %d, step %d): disagreement %.4g above %.4g; holding",
+                        req.number, event.step, req.score, req.threshold)
+            self._statustext(req.text())
+            self.p.human.on_request(req)
+            return
+        if event.kind == "unanswered":
+            log.warning("no one answered request %d within %.0f s: landing", req.number if req else 0,
+                        event.waited_steps * self.period_s)
+            self._statustext("COL: no answer, landing")
+        else:
+            log.info("request %s %s at step %d after %d steps", req.number if req else "-",
+                     event.kind.replace("_", " "), event.step, event.waited_steps)
+        if event.kind != "handed_back":
+            self.p.human.on_request(None)
+
+    def _statustext(self, text: str) -> None:
+        try:
+            self.p.link.send_statustext(text)
+        except ColError as exc:
+            log.error("could not send STATUSTEXT %r: %s", text, exc)
+
+    def _read_human(self, phase: Phase, obs: Any) -> HumanCommand:
+        """The person's input; one who watches only when asked is away between requests."""
+        asker = self.p.asker
+        if (asker is not None and phase is Phase.INTERVENTION and self.p.human.robot_gated
+                and not asker.wants_person):
+            return HumanCommand.neutral()
+        return self.p.human.read(obs)
+
+    def _ask(self, phase: Phase, step: int, score: float, human: HumanCommand) -> AskAction:
+        if self.p.asker is None or phase is not Phase.INTERVENTION:
+            return AskAction.POLICY
+        return self.p.asker.step(step, score, human.override_held)
+
+    def _send_ask_action(self, action: AskAction, snap: VehicleSnapshot) -> None:
+        """Hold where the request was raised, or land; other actions fly as usual."""
+        if action is AskAction.HOLD:
+            if self._hold_ned is None:
+                n, e, d = (float(v) for v in snap.position_ned_m)
+                self._hold_ned = (n, e, d, float(snap.attitude_rad[2]))
+            echo = self._frame_ms if self.p.lockstep and self._frame_ms >= 0 else None
+            self.p.link.send_position_ned(*self._hold_ned, echo_time_boot_ms=echo)
+            return
+        if not self._landing:
+            self._landing = True
+            try:
+                self.p.link.land()
+            except ColError as exc:
+                log.error("could not command the landing: %s; holding", exc)
+        self._send(HOLD)  # answers the lockstep frame; the vehicle lands in its own mode
 
     def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
              t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
@@ -399,13 +500,21 @@ class EpisodeRunner:
             except ColError as exc:
                 log.error("could not switch to hold: %s", exc)
             return "fence", None
-        human = self.p.human.read(obs)
-        policy_cmd, version = self._policy_command(vector)
+        human = self._read_human(phase, obs)
+        policy_cmd, version, score = self._policy_command(vector)
+        action = self._ask(phase, step, score, human)
         decision = self.arbiter.decide(phase, human, policy_cmd)
-        sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
-        self._send(sp)
+        if action in (AskAction.HOLD, AskAction.LAND):
+            self._send_ask_action(action, snap)
+            self.trace.append((step, score, action.value))
+        else:
+            if self._hold_ned is not None:  # the hold ended: rate limits start from what is asked now
+                self._hold_ned = None
+                self.p.limiter.reset()
+            self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s))
+            self.trace.append((step, score, decision.source))
         self.step_latencies_s.append(time.perf_counter() - t_start)
-        if decision.record and self.p.dataset is not None:
+        if decision.record and action is not AskAction.LAND and self.p.dataset is not None:
             source = Source.DEMONSTRATION if decision.tag == "demonstration" else Source.INTERVENTION
             self.p.dataset.append(Sample(episode, step, (obs.time_boot_ms - t0_ms) / 1000.0, source, vector,
                                          decision.command.to_array()))
@@ -414,10 +523,19 @@ class EpisodeRunner:
                                             human.override_held, human.hold))
         return None, version
 
+    def _supervised_steps(self, phase: Phase, steps: int) -> int:
+        if phase is Phase.AUTONOMOUS:
+            return 0
+        ask = self._ask_summary
+        if phase is Phase.INTERVENTION and ask is not None and self.p.human.robot_gated:
+            return ask.engaged_steps
+        return steps
+
     def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
                 notes: list[str]) -> EpisodeRecord:
         summary = self.arbiter.summary()
+        ask = self._ask_summary
         success = distance = speed = None
         if self.p.simulator is not None:
             try:
@@ -444,4 +562,8 @@ class EpisodeRunner:
             touchdown_speed_m_s=None if speed is None else round(speed, 4),
             policy_version=version, dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
             sim_time_s=round(sim_s, 3), wall_time_s=round(time.monotonic() - wall0, 3), notes=tuple(notes),
+            requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
+            supervised_steps=self._supervised_steps(phase, steps),
+            ask_threshold=None if self.p.asker is None or not math.isfinite(self.p.asker.threshold)
+            else round(self.p.asker.threshold, 8),
         )

@@ -20,12 +20,14 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from colcommon.configio import Section, build, read_toml, section
-from companion.config import CompanionConfig, load_companion_config
+from companion.config import AskConfig, CompanionConfig, load_companion_config
 from companion.errors import ConfigError
 from companion.inputs.synthetic import PROFILES
 
-TrainCondition = Literal["demo", "int", "col"]
-TRAIN_CONDITIONS: tuple[TrainCondition, ...] = ("demo", "int", "col")
+TrainCondition = Literal["demo", "int", "col", "ask"]
+PAPER_CONDITIONS: tuple[TrainCondition, ...] = ("demo", "int", "col")
+TRAIN_CONDITIONS: tuple[TrainCondition, ...] = (*PAPER_CONDITIONS, "ask")
+"""``ask`` is CoL's schedule with the interventions asked for by the policy (docs/ask-for-help.md)."""
 START_SEEDS_PER_REPLICATE = 1000
 """Training starts of replicate ``s`` use seeds ``1000 s, 1000 s + 1, ...`` (never the
 held-out evaluation starts, which begin at ``eval_seed``)."""
@@ -35,7 +37,7 @@ class ExperimentConfig(Section):
     """[experiment]: the grid and how every trial's final policy is evaluated."""
 
     participants: tuple[str, ...] = ("P1", "P2", "P3", "P4")
-    conditions: tuple[TrainCondition, ...] = TRAIN_CONDITIONS
+    conditions: tuple[TrainCondition, ...] = PAPER_CONDITIONS
     interactions: tuple[int, ...] = (4, 8, 12, 20)
     seeds: tuple[int, ...] = Field((0,), description="replicates; each gives other training starts and noise")
     eval_runs: int = Field(100, ge=1, description="held-out starts flown by every final policy")
@@ -192,9 +194,21 @@ class ExperimentSetup:
         exp = self.exp
         settings = {"eval_runs": exp.eval_runs, "eval_seed": exp.eval_seed,
                     "updates_per_step": exp.updates_per_step,
-                    "companion": self.companion.model_dump(mode="json"), "sitl": self.sitl_tables}
+                    "companion": _fingerprinted(self.companion), "sitl": self.sitl_tables}
         blob = json.dumps(settings, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _fingerprinted(companion: CompanionConfig) -> dict[str, object]:
+    """The companion's settings, leaving out those added after results were committed while
+    they are at their defaults (the ensemble size, asking for help): those results keep their
+    fingerprint, and a setting that does change them still changes it."""
+    data = companion.model_dump(mode="json")
+    if data["learner"].get("ensemble_members") == 1:
+        del data["learner"]["ensemble_members"]
+    if data.get("ask") == AskConfig().model_dump(mode="json"):
+        del data["ask"]
+    return data
 
 
 def load_experiment(path: str | Path) -> ExperimentSetup:
@@ -202,4 +216,8 @@ def load_experiment(path: str | Path) -> ExperimentSetup:
     data = read_toml(path)
     exp = build(ExperimentConfig, section(data, "experiment"), f"[experiment] in {path}")
     sitl_tables = json.dumps(section(data, "sitl"), sort_keys=True)
-    return ExperimentSetup(exp, load_companion_config(path), Path(path), sitl_tables)
+    companion = load_companion_config(path)
+    if "ask" in exp.conditions and companion.learner.ensemble_members < 2:
+        raise ConfigError(f"{path}: the ask condition needs an ensemble to measure disagreement: set "
+                          "[companion.learner] ensemble_members to 2 or more (5 is usual)")
+    return ExperimentSetup(exp, companion, Path(path), sitl_tables)

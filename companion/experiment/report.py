@@ -32,9 +32,9 @@ from companion.statistics import (
     t_interval,
 )
 
-LABELS = {"int": "Int", "demo": "Demo", "col": "CoL"}
-ORDER = ("int", "demo", "col")  # the paper's bar order
-COLOURS = {"int": "#8da0cb", "demo": "#66c2a5", "col": "#fc8d62"}
+LABELS = {"int": "Int", "demo": "Demo", "col": "CoL", "ask": "Ask"}
+ORDER = ("int", "demo", "col", "ask")  # the paper's bar order, then asking for help
+COLOURS = {"int": "#8da0cb", "demo": "#66c2a5", "col": "#fc8d62", "ask": "#e78ac3"}
 PAPER_COMPLETION_PCT: dict[tuple[str, int], tuple[float, float]] = {
     ("col", 20): (90.25, 5.63), ("demo", 20): (76.25, 2.72),
     ("col", 8): (74.75, 9.38), ("demo", 8): (54.00, 8.95),
@@ -47,7 +47,7 @@ PAPER_DEMO_SAMPLES_20 = PAPER_COL_SAMPLES_20[0] / (1.0 - PAPER_COL_FEWER_SAMPLES
 PAPER_COL_PER_SAMPLE_RATIO = 1.84
 """The paper's summary over all interaction counts: CoL's task completion per human sample
 relative to Demo's (at 20 interactions alone it states 1.90x)."""
-COMPARISONS = (("col", "demo"), ("col", "int"))
+COMPARISONS = (("col", "demo"), ("col", "int"), ("ask", "col"))
 """Paired comparisons in the report: a minus b."""
 CONFIDENCE = 0.95
 REPORT_SEED = 0
@@ -207,7 +207,7 @@ def paired_markdown(results: Sequence[TrialResult]) -> list[str]:
         return []
     return ["## Paired comparisons (completion points)", "",
             "| interactions | comparison | pairs | mean difference | 95 % BCa interval | "
-            "p, sign-flip (primary) | p, Wilcoxon | CoL better / tie / worse | paper |",
+            "p, sign-flip (primary) | p, Wilcoxon | first better / tie / worse | paper |",
             "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |", *rows, "", PAIRED_NOTE, ""]
 
 
@@ -399,7 +399,10 @@ def write_report(results: Sequence[TrialResult], out_dir: Path) -> Path:
     cells = summarise(results)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "report.md"
-    sections = [*paired_markdown(results), *efficiency_markdown(results), *participants_markdown(results)]
+    from companion.experiment.ask_report import ask_markdown
+
+    sections = [*paired_markdown(results), *ask_markdown(results), *efficiency_markdown(results),
+                *participants_markdown(results)]
     body = markdown(cells) + "\n" + "\n".join(sections)
     path.write_text("# Experiment: synthetic participants\n\n" + body + "\n" + "\n\n".join(FIGURES) + "\n")
     if cells:

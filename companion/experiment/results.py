@@ -19,6 +19,8 @@ from companion.experiment.grid import Trial
 
 Status = Literal["ok", "error"]
 TIMING_FIELDS = ("train_wall_s", "eval_wall_s")
+SUPERVISION_FIELDS = ("requests", "supervised_steps", "watched_steps", "intervention_phase_steps")
+"""Written only when set (grids with the ``ask`` condition): earlier results keep their lines."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +43,14 @@ class TrialResult:
     eval_wall_s: float = 0.0
     final_checkpoint: str | None = None
     error: str | None = None
+    requests: int | None = None
+    """Grids with the ``ask`` condition (else None, left out of the line): requests for help in
+    training, and the steps the person had to watch - in all training episodes
+    (``supervised_steps``), in the intervention-phase episodes alone (``watched_steps``), out
+    of all steps of those episodes (``intervention_phase_steps``)."""
+    supervised_steps: int | None = None
+    watched_steps: int | None = None
+    intervention_phase_steps: int | None = None
 
     def __post_init__(self) -> None:
         if self.status not in ("ok", "error"):
@@ -56,7 +66,8 @@ class TrialResult:
     def to_json_dict(self) -> dict[str, Any]:
         """What the trial produced, and nothing that depends on the machine: wall times are
         written apart (:meth:`timing`), so a rerun of a trial writes the same line."""
-        data = {k: v for k, v in asdict(self).items() if k not in TIMING_FIELDS}
+        data = {k: v for k, v in asdict(self).items()
+                if k not in TIMING_FIELDS and not (k in SUPERVISION_FIELDS and v is None)}
         data["trial"]["key"] = self.trial.key
         return data
 

@@ -89,6 +89,7 @@ def _result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord]
             eval_wall_s: float, checkpoint: str) -> TrialResult:
     """A trial's result from its training episodes (a prefix of the run) and its evaluation."""
     intervening = [r for r in train if r.phase == Phase.INTERVENTION.value]
+    supervision = "ask" in setup.exp.conditions
     return TrialResult(
         trial=trial, fingerprint=setup.fingerprint(), status="ok",
         eval_runs=len(evaluation.records), eval_successes=evaluation.successes,
@@ -99,6 +100,10 @@ def _result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord]
         train_successes=sum(1 for r in train if r.success),
         train_wall_s=round(sum(r.wall_time_s for r in train), 2), eval_wall_s=round(eval_wall_s, 2),
         final_checkpoint=checkpoint,
+        requests=sum(r.requests for r in train) if supervision else None,
+        supervised_steps=sum(r.supervised_steps for r in train) if supervision else None,
+        watched_steps=sum(r.supervised_steps for r in intervening) if supervision else None,
+        intervention_phase_steps=sum(r.steps for r in intervening) if supervision else None,
     )
 
 

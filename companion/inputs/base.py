@@ -46,8 +46,33 @@ class HumanCommand:
         return cls(JoystickCommand.neutral(), override_held=False)
 
 
+@dataclass(frozen=True)
+class HelpRequest:
+    """The companion asks the person to take over: its policy is unsure here and holds.
+
+    ``number`` counts the requests of a session (from 1); ``score`` is the ensemble's
+    disagreement that crossed ``threshold`` at control step ``step`` of ``episode``.
+    """
+
+    number: int
+    episode: int
+    step: int
+    score: float
+    threshold: float
+
+    def text(self) -> str:
+        """What a ground station shows (STATUSTEXT holds 50 characters)."""
+        return f"COL: unsure, holding - take over ({self.number})"
+
+
 class HumanInput(ABC):
     """A source of human commands, read once per control tick from the control loop."""
+
+    robot_gated: bool = False
+    """True for a person who watches only when asked: while the companion asks for help
+    (``[companion.ask]``), :meth:`read` is called only during a request and while the person
+    holds the override; otherwise they count as away (neutral, no override). A person at a
+    joystick (False) is read every tick and may take over at any time, asked or not."""
 
     @abstractmethod
     def read(self, obs: Observation) -> HumanCommand:
@@ -56,6 +81,11 @@ class HumanInput(ABC):
     def reset(self) -> None:
         """Start of an episode: forget anything remembered from the last one."""
         return None  # default: nothing to forget
+
+    def on_request(self, request: HelpRequest | None) -> None:
+        """A request for help began (``request``) or ended (None: answered, given up, or the
+        episode ended). Default: nothing (a person learns of it from the ground station)."""
+        return None
 
     def close(self) -> None:
         """Release devices; reading after close is an error of the caller."""

@@ -282,6 +282,18 @@ class InterventionRule:
             return RuleState(False, None)
         return RuleState(True, "holding until steady")
 
+    def take_over(self, obs: Observation) -> RuleState:
+        """Asked for help: advance by one observation and hold the sticks whatever it shows
+        (let go by the usual release rule)."""
+        state = self.update(obs)
+        if state.holding:
+            return state
+        self._holding, self._on_track_since_ms = True, None
+        self._takeover_down_m = float(obs.position_ned_m[2])
+        self._progress.restart()
+        self.takeovers += 1
+        return RuleState(True, "asked for help")
+
     def _danger(self, obs: Observation, view: PadEstimate | None) -> str | None:
         c = self.cfg
         vn, ve, vd = (float(v) for v in obs.velocity_ned_m_s)
@@ -331,15 +343,22 @@ class InterveningExpert(HumanInput):
         self.expert = ScriptedExpert(cfg)
         self.rule = InterventionRule(cfg)
         self.last_state = RuleState(False, None)
+        self._asked = False
 
     def reset(self) -> None:
         self.expert.reset()
         self.rule.reset()
         self.last_state = RuleState(False, None)
+        self._asked = False
+
+    def take_over_now(self) -> None:
+        """Asked for help: take the sticks at the next read, whatever the rule sees."""
+        self._asked = True
 
     def read(self, obs: Observation) -> HumanCommand:
         was_holding = self.last_state.holding
-        self.last_state = self.rule.update(obs)
+        self.last_state = self.rule.take_over(obs) if self._asked else self.rule.update(obs)
+        self._asked = False
         if self.last_state.holding and not was_holding:
             self.expert.reset_trim()  # a take-over label depends on what is seen now only
         cmd = self.expert.command(obs)  # every tick, so the expert's memory stays current

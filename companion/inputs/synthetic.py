@@ -35,7 +35,7 @@ import numpy as np
 from companion.commands import JoystickCommand
 from companion.config import PilotConfig
 from companion.errors import ConfigError
-from companion.inputs.base import HumanCommand, HumanInput
+from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
 
 if TYPE_CHECKING:
@@ -183,6 +183,14 @@ class SyntheticPilot(HumanInput):
     def close(self) -> None:
         self.inner.close()
 
+    def look_again(self) -> None:
+        """Turn back to the screen after looking away for a while: what was seen before is
+        forgotten (the delay line, the last command, the inner pilot's memory); the episode's
+        randomness goes on."""
+        self._seen.clear()
+        self._last = None
+        self.inner.reset()
+
     def read(self, obs: Observation) -> HumanCommand:
         self._seen.append(obs)
         looking_away = self.rng.random() < self.profile.attention_lapse_prob
@@ -201,3 +209,58 @@ class SyntheticPilot(HumanInput):
 def synthetic_pilot(profile: PilotProfile, cfg: PilotConfig, trial_seed: int = 0) -> SyntheticPilot:
     """The participant ``profile`` flying the scripted expert under its patience-scaled rule."""
     return SyntheticPilot(profile, InterveningExpert(profile.pilot_config(cfg)), trial_seed)
+
+
+class OnCallPilot(HumanInput):
+    """A participant who watches only when the companion asks (``robot_gated``).
+
+    Between requests they are away: the session does not read them in intervention
+    episodes. A request reaches them (:meth:`on_request`); ``response_steps`` control steps
+    later they have turned to the screen and take over at once (the vehicle is holding, which
+    is why they were asked), fly as the participant does, and let go by the participant's
+    release rule; then they are away again. Demonstrations are flown as usual.
+    """
+
+    robot_gated = True
+
+    def __init__(self, pilot: SyntheticPilot, response_steps: int) -> None:
+        if not isinstance(pilot.inner, InterveningExpert):
+            raise ConfigError("an on-call participant needs the scripted expert with its intervention rule")
+        if response_steps < 0:
+            raise ConfigError(f"response_steps must be >= 0, got {response_steps}")
+        self.pilot = pilot
+        self.expert = pilot.inner
+        self.response_steps = response_steps
+        self._state = "away"
+        self._wait = 0
+        self.answered = 0
+
+    def reset(self) -> None:
+        self.pilot.reset()
+        self._state, self._wait = "away", 0
+
+    def close(self) -> None:
+        self.pilot.close()
+
+    def on_request(self, request: HelpRequest | None) -> None:
+        if request is not None and self._state == "away":
+            self._state, self._wait = "responding", self.response_steps
+
+    def read(self, obs: Observation) -> HumanCommand:
+        if self._state == "responding":
+            if self._wait > 0:
+                self._wait -= 1
+                return HumanCommand.neutral()
+            self.pilot.look_again()
+            self.expert.take_over_now()
+            self._state = "flying"
+            self.answered += 1
+        command = self.pilot.read(obs)
+        if self._state == "flying" and not command.override_held:
+            self._state = "away"
+        return command
+
+
+def on_call_pilot(profile: PilotProfile, cfg: PilotConfig, trial_seed: int, response_steps: int) -> OnCallPilot:
+    """The participant ``profile``, watching only when asked, answering ``response_steps`` late."""
+    return OnCallPilot(synthetic_pilot(profile, cfg, trial_seed), response_steps)

@@ -2,7 +2,8 @@
 
 Format (``FORMAT_VERSION`` 1): a NumPy ``.npz`` archive (zip; every member CRC-checked on
 read, no pickles) holding ``weight_<i>`` ``(out, in)`` and ``bias_<i>`` float32 arrays,
-``obs_mean``/``obs_std``, and ``metadata`` - UTF-8 JSON as a uint8 array with the format name
+``obs_mean``/``obs_std`` (an ensemble adds ``member_weight_<i>`` ``(K, out, in)`` and
+``member_bias_<i>``, with member 0 as ``weight_<i>``), and ``metadata`` - UTF-8 JSON as a uint8 array with the format name
 and version, observation and action names, hidden sizes, activations, the learner config,
 snapshot version, dataset size, episode, condition, creation time and free-form ``extra``.
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import CheckpointError
+from companion.learning.ensemble import EnsembleSnapshot
 from companion.learning.snapshot import ACTION_NAMES, Normalisation, PolicySnapshot
 from companion.vision.observation import OBS_DIM, OBS_NAMES
 
@@ -77,6 +79,10 @@ def save_checkpoint(
     arrays = {f"weight_{i}": w for i, w in enumerate(snap.weights)}
     arrays |= {f"bias_{i}": b for i, b in enumerate(snap.biases)}
     arrays |= {"obs_mean": snap.normalisation.mean, "obs_std": snap.normalisation.std}
+    if isinstance(snap, EnsembleSnapshot):
+        arrays |= {f"member_weight_{i}": w for i, w in enumerate(snap.member_weights)}
+        arrays |= {f"member_bias_{i}": b for i, b in enumerate(snap.member_biases)}
+        meta["ensemble_members"] = snap.members
     arrays["metadata"] = np.frombuffer(json.dumps(meta, indent=1).encode(), dtype=np.uint8)
     buf = io.BytesIO()
     np.savez(buf, allow_pickle=False, **cast(dict[str, Any], arrays))
@@ -199,6 +205,10 @@ def _snapshot(p: Path, arrays: dict[str, np.ndarray], meta: CheckpointMeta) -> P
         biases = tuple(arrays[f"bias_{i}"] for i in range(n_layers))
         norm = Normalisation(arrays["obs_mean"], arrays["obs_std"])
         snap = PolicySnapshot(weights, biases, norm, meta.version, meta.dataset_size_trained)
+        if "member_weight_0" in arrays:
+            snap = EnsembleSnapshot.stack([arrays[f"member_weight_{i}"] for i in range(n_layers)],
+                                          [arrays[f"member_bias_{i}"] for i in range(n_layers)],
+                                          norm, meta.version, meta.dataset_size_trained)
     except (KeyError, ValueError) as exc:
         raise CheckpointError(f"checkpoint {p} weights are inconsistent ({exc}); use another one") from exc
     if snap.obs_dim != len(meta.obs_names) or snap.hidden != meta.hidden:

@@ -1,7 +1,8 @@
 """The paper's Update-Policy procedure (Algorithm 1): supervised updates on the human dataset.
 
 ``Learner`` owns the model's trainer (:class:`~companion.learning.trainer.MlpTrainer`: MSE,
-RMSProp) and the paper's loop. ``step()`` is one plain, deterministic
+RMSProp; or, with ``ensemble_members`` > 1, :class:`~companion.learning.ensemble.EnsembleTrainer`:
+K networks, each on its own minibatches) and the paper's loop. ``step()`` is one plain, deterministic
 update (seeded minibatch); ``train_until_converged()`` is the paper's loop - whenever the dataset
 holds new samples, update until the minibatch loss is below the threshold or the round reaches
 ``max_updates`` - and can stop after a budget of updates and resume where it was.
@@ -26,6 +27,7 @@ import numpy as np
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.dataset import DatasetView
+from companion.learning.ensemble import EnsembleSnapshot, EnsembleTrainer
 from companion.learning.snapshot import Normalisation, PolicySnapshot, random_snapshot
 from companion.learning.trainer import MlpTrainer, one_blas_thread
 from companion.vision.observation import OBS_DIM
@@ -75,10 +77,8 @@ class Learner:
         self.config = config
         self.dataset = dataset
         self.rng = rng if rng is not None else np.random.default_rng(config.seed)
-        start = self._initial_weights(config, obs_dim, normalisation, initial)
         one_blas_thread()  # process-wide: threaded BLAS is ~10x slower on these small products
-        self.trainer = MlpTrainer.from_snapshot(start, lr=config.learning_rate,
-                                                batch_size=config.batch_size)
+        self.trainer = self._make_trainer(config, obs_dim, normalisation, initial)
         self.updates = initial.version if initial else 0
         self.last_loss = math.nan
         self._lock = threading.RLock()
@@ -88,6 +88,26 @@ class Learner:
         self._converged = False
         self._since_publish = 0
         self._latest = self.trainer.snapshot(self.updates, self._trained_size)
+
+    @classmethod
+    def _make_trainer(cls, config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
+                      initial: PolicySnapshot | None) -> MlpTrainer | EnsembleTrainer:
+        """One network (the paper's), or ``ensemble_members`` of them trained side by side."""
+        lr, batch = config.learning_rate, config.batch_size
+        k = config.ensemble_members
+        if k == 1:
+            return MlpTrainer.from_snapshot(cls._initial_weights(config, obs_dim, normalisation, initial),
+                                           lr=lr, batch_size=batch)
+        if initial is not None:
+            if not isinstance(initial, EnsembleSnapshot) or initial.members != k:
+                have = initial.members if isinstance(initial, EnsembleSnapshot) else 1
+                raise ConfigError(f"initial policy has {have} member(s), the config asks for an ensemble of {k}; "
+                                  "start fresh or set learner.ensemble_members to match")
+            cls._initial_weights(config, obs_dim, normalisation, initial.member(0))  # checks the shape
+            return EnsembleTrainer.from_snapshot(initial, lr=lr, batch_size=batch)
+        members = [cls._initial_weights(config.model_copy(update={"seed": config.seed + m}), obs_dim,
+                                         normalisation, None) for m in range(k)]
+        return EnsembleTrainer.from_snapshot(EnsembleSnapshot.of_members(members), lr=lr, batch_size=batch)
 
     @staticmethod
     def _initial_weights(config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
@@ -126,7 +146,8 @@ class Learner:
             n = len(view)
             if n == 0:
                 raise ValueError("the dataset is empty; record samples before training")
-            idx = self.rng.integers(0, n, size=self.config.batch_size)
+            k = self.config.ensemble_members  # an ensemble: every member its own minibatch
+            idx = self.rng.integers(0, n, size=self.config.batch_size if k == 1 else (k, self.config.batch_size))
             try:
                 value = self.trainer.step(view.obs[idx], view.actions[idx])
             except FloatingPointError as exc:

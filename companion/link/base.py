@@ -194,6 +194,11 @@ class VehicleLink(ABC):
     @abstractmethod
     def stats(self) -> LinkStats: ...
 
+    def send_statustext(self, text: str, severity: int = 4) -> bool:
+        """Tell the ground stations (STATUSTEXT, at most 50 characters; ``severity`` is
+        MAV_SEVERITY, 4 = WARNING). False: this link cannot send it (nothing was sent)."""
+        return False
+
     def __enter__(self) -> VehicleLink:
         return self
 

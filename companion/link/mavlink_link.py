@@ -365,6 +365,13 @@ class MavlinkLink(VehicleLink):
         self._io.send(msg)
         self._io.counts["setpoints_sent"] += 1
 
+    def send_statustext(self, text: str, severity: int = 4) -> bool:
+        """STATUSTEXT from the companion's component; the autopilot forwards it to the ground
+        stations (PX4 with MAVLink forwarding on; our SITL always)."""
+        self._require_alive()
+        self._io.send(self._io.mav.statustext_encode(int(severity), text.encode("ascii", "replace")[:50]))
+        return True
+
     # ================================================================ guards
     def _target(self) -> tuple[int, int]:
         target = self._io.target

@@ -92,6 +92,19 @@ def test_fingerprint_follows_evaluation_and_config_but_not_the_grid_extent() -> 
     assert ExperimentSetup(ExperimentConfig(), CompanionConfig(), sitl_tables='{"world": {}}').fingerprint() != base
 
 
+def test_settings_added_later_keep_committed_fingerprints_at_their_defaults() -> None:
+    """The ensemble size and [companion.ask] came after results/paper-grid was committed."""
+    committed = json.loads((Path(__file__).parents[2] / "results/paper-grid/experiment.json").read_text())
+    assert load_experiment(Path(__file__).parents[2] / "configs/paper.toml").fingerprint() == committed["fingerprint"]
+    base = setup_of().fingerprint()
+    learner = CompanionConfig().learner.model_copy(update={"ensemble_members": 5})
+    ensemble = CompanionConfig().model_copy(update={"learner": learner})
+    assert ExperimentSetup(ExperimentConfig(), ensemble).fingerprint() != base
+    asking = ensemble.model_copy(update={"ask": ensemble.ask.model_copy(update={"enabled": True})})
+    assert ExperimentSetup(ExperimentConfig(), asking).fingerprint() not in (base, ExperimentSetup(
+        ExperimentConfig(), ensemble).fingerprint())
+
+
 def test_results_file_round_trips_skips_a_torn_last_line_and_refuses_a_bad_middle_one(tmp_path: Path) -> None:
     f = ResultsFile(tmp_path / "results.jsonl")
     a, b = result(Trial("P1", "demo", 4, 0)), result(Trial("P1", "col", 4, 0), successes=20)

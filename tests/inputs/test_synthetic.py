@@ -11,12 +11,14 @@ from companion.app import build_human
 from companion.commands import JoystickCommand
 from companion.config import CompanionConfig, PilotConfig
 from companion.errors import ConfigError
-from companion.inputs.base import HumanCommand, HumanInput
+from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
 from companion.inputs.synthetic import (
     PROFILES,
+    OnCallPilot,
     PilotProfile,
     SyntheticPilot,
+    on_call_pilot,
     profile_named,
     synthetic_pilot,
 )
@@ -187,3 +189,29 @@ def test_build_human_makes_a_seeded_synthetic_participant() -> None:
     assert human.inner.rule.cfg.takeover_descent_m_s == pytest.approx(0.8 * 1.5)
     with pytest.raises(ConfigError):
         build_human("synthetic:nobody", cfg, None)  # type: ignore[arg-type]
+
+
+def test_an_on_call_participant_answers_a_request_late_takes_over_and_lets_go() -> None:
+    """Asked while all is well (the pad centred below, descending gently): they turn round,
+    take over at once, and let go by their release rule once back on track and lower."""
+    pilot = on_call_pilot(profile(), PilotConfig(), trial_seed=0, response_steps=3)
+    assert pilot.robot_gated and isinstance(pilot, OnCallPilot)
+    pilot.reset()
+    assert pilot.read(obs_at(0)).command != JoystickCommand.neutral()  # a demonstration flies as usual
+    pilot.on_request(HelpRequest(1, 0, 1, 0.5, 0.1))
+    answers = [pilot.read(obs_at(1 + i, down_m=-8.0 + 0.1 * i, vd_m_s=0.5)) for i in range(60)]
+    held = [a.override_held for a in answers]
+    assert held[:3] == [False, False, False] and answers[0] == HumanCommand.neutral()
+    assert held[3], "no take-over after the response delay"
+    released = held.index(False, 3)
+    assert 3 + 10 <= released < 60  # held through the release rule's time, then let go
+    assert not any(held[released:]) and pilot.answered == 1
+    pilot.on_request(None)  # the request closes: nothing changes while away
+
+
+def test_build_human_makes_an_on_call_participant_when_asking() -> None:
+    cfg = CompanionConfig()
+    cfg = cfg.model_copy(update={"ask": cfg.ask.model_copy(update={"enabled": True, "synthetic_response_s": 1.0})})
+    human = build_human("synthetic:P2", cfg, None)  # type: ignore[arg-type]
+    assert isinstance(human, OnCallPilot) and human.response_steps == 10  # 1 s at 10.5 Hz, rounded
+    assert human.pilot.profile is PROFILES["P2"]

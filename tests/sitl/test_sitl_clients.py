@@ -150,6 +150,20 @@ def test_manual_control_from_the_ground_station_is_forwarded_to_the_offboard_cli
     assert not any(m.get_type() == "MANUAL_CONTROL" for m in gcs.inbox), "echoed back to its sender"
 
 
+def test_statustext_from_the_companion_reaches_the_ground_station(sitl, gcs: TcpGroundStation) -> None:
+    """A companion's request for help (STATUSTEXT) is forwarded as PX4 forwards it."""
+    _, offboard = sitl
+    offboard.wait_for(autopilot_heartbeat, 5.0)
+    gcs.wait_for(autopilot_heartbeat, 5.0)
+    hello(offboard)
+    text = M.MAVLink_statustext_message(M.MAV_SEVERITY_WARNING, b"COL: unsure, holding - take over (1)")
+    offboard.send(text)
+    got = gcs.wait_for(lambda m: m.get_type() == "STATUSTEXT" and m.text.startswith("COL:"), 5.0)
+    assert got is not None and got.text == "COL: unsure, holding - take over (1)"
+    assert got.severity == M.MAV_SEVERITY_WARNING
+    assert (got.get_srcSystem(), got.get_srcComponent()) == (OFFBOARD_SYSTEM, OFFBOARD_COMPONENT)
+
+
 def test_a_tcp_client_that_vanishes_mid_stream_does_not_disturb_the_others(sitl, gcs: TcpGroundStation) -> None:
     proc, offboard = sitl
     offboard.wait_for(autopilot_heartbeat, 5.0)
