@@ -271,23 +271,42 @@ def ppo(
     actions: Annotated[int, typer.Option("--actions", min=2, max=4, help="2: pitch, roll (constant descent); 3: + throttle; 4: + yaw")] = 2,
     episodes: Annotated[int, typer.Option(min=1, help="training episodes (the paper: 1000)")] = 1000,
     eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="held-out starts the final model flies (seeds 100000 + i, as col eval)")] = 100,
-    out: Annotated[Path | None, typer.Option("--out", help="folder for model.zip, train_episodes.jsonl, results.json (default: runs/<time>-ppo<actions>)")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="folder for model.zip, train_episodes.jsonl, results.json (default: runs/<time>-ppo<actions>); run again on it to continue an interrupted run")] = None,
     seed: Annotated[int, typer.Option(help="PPO's seed; training episode i starts from seed + i")] = 0,
-    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps")] = 2048,
+    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps (per env)")] = 2048,
+    log_std_init: Annotated[float, typer.Option("--log-std-init", help="initial log standard deviation of the policy (stable-baselines3: 0)")] = 0.0,
+    ent_coef: Annotated[float, typer.Option("--ent-coef", min=0.0, help="entropy bonus (stable-baselines3: 0)")] = 0.0,
+    envs: Annotated[int, typer.Option("--envs", min=1, help="envs stepped at once (more than 1: worker processes)")] = 1,
+    mavlink: Annotated[bool, typer.Option("--mavlink", help="fly the SITL over MAVLink sockets instead of in-process (the same episodes, slower)")] = False,
+    random: Annotated[bool, typer.Option("--random", help="no training: uniformly random actions on the training starts; writes random.json")] = False,
     config: ConfigOpt = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's PPO baseline: sparse success reward, trained in the lockstep SITL, then evaluated."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.rl.ppo import PpoSettings, run_ppo
+    from companion.rl.ppo import PpoSettings, random_policy, run_ppo, summarise
 
     try:
         cfg = _load(config)
-        settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps)
-        bar = tqdm(total=episodes, desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
+        folder = out or default_run_dir(cfg, f"ppo{actions}")
+        if random:
+            bar = tqdm(total=episodes, desc=f"random {actions} actions", unit="ep", leave=False, disable=None)
+            try:
+                runs = random_policy(actions, episodes, cfg, config, seed, lambda r: bar.update(1))
+            finally:
+                bar.close()
+            report = {"action_dims": actions, "seed0": seed, **summarise(runs)}
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "random.json").write_text(json.dumps({"summary": report, "episodes": runs}, indent=1) + "\n")
+            typer.echo(json.dumps(report))
+            return
+        settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps,
+                               log_std_init=log_std_init, ent_coef=ent_coef, n_envs=envs, inprocess=not mavlink)
+        done = _episodes_logged(folder)
+        bar = tqdm(total=episodes, initial=min(done, episodes), desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
         try:
-            results = run_ppo(settings, out or default_run_dir(cfg, f"ppo{actions}"), cfg, config, lambda r: bar.update(1))
+            results = run_ppo(settings, folder, cfg, config, lambda r: bar.update(1))
         finally:
             bar.close()
     except ColError as exc:
@@ -296,6 +315,12 @@ def ppo(
     typer.echo(f"trained {results['train']['episodes']} episodes in {results['train']['wall_s']:.0f} s; final policy "
                f"{ev['successes']}/{ev['episodes']} = {ev['success_rate']:.0%} (95% CI {ev['ci95'][0]:.0%}-{ev['ci95'][1]:.0%})")
     typer.echo(json.dumps(ev))
+
+
+def _episodes_logged(folder: Path) -> int:
+    """Training episodes a resumable PPO folder's checkpoint has seen (0 for a new folder)."""
+    state = folder / "checkpoint.json"
+    return int(json.loads(state.read_text())["episodes"]) if state.exists() else 0
 
 
 if __name__ == "__main__":

@@ -51,6 +51,7 @@ log = logging.getLogger(__name__)
 ACTION_AXES: tuple[str, ...] = ("pitch", "roll", "throttle", "yaw")
 """What the action's entries control, in order; an n-action env controls the first n."""
 DESCENT_THROTTLE = -0.5
+IN_PROCESS_LINK_LOST_S = 1e9
 """Constant throttle stick of the 2-action task: about 0.47 m/s down with the default
 commands (deadband 0.05, v_z_max 1 m/s), 8 m to the pad in about 180 steps."""
 
@@ -73,6 +74,12 @@ def stick_values(action: np.ndarray, action_dims: int, descent_throttle: float) 
     throttle = a[2] if action_dims >= 3 else descent_throttle
     yaw = a[3] if action_dims == 4 else 0.0
     return np.array([roll, pitch, yaw, throttle])
+
+
+def _never_lost(cfg: CompanionConfig) -> CompanionConfig:
+    """In one process the link cannot be lost, and the time the agent takes between steps (a PPO
+    update: seconds on a busy machine) is no silence of the vehicle: no wall-clock link loss."""
+    return cfg.model_copy(update={"link": cfg.link.model_copy(update={"link_lost_s": IN_PROCESS_LINK_LOST_S})})
 
 
 class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -136,7 +143,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
     def _connect(self, opts: RunOptions) -> tuple[EpisodeRunner, SimulatorClient]:
         """The vehicle (over MAVLink sockets or in-process) and the session's episode loop on it."""
         if self.inprocess:
-            vehicle = self._stack.enter_context(inprocess_vehicle(self.cfg, opts, True, Path(".")))
+            vehicle = self._stack.enter_context(inprocess_vehicle(_never_lost(self.cfg), opts, True, Path(".")))
         else:
             vehicle = self._open_sockets(opts)
         link, simulator, camera = vehicle.link, vehicle.simulator, vehicle.camera

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+import gymnasium as gym
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from companion.config import CompanionConfig
@@ -19,10 +21,10 @@ from companion.rl.gym_env import DESCENT_THROTTLE, LandingEnv
 
 
 def env_factory(action_dims: int, cfg: CompanionConfig, config_path: Path | None, *, inprocess: bool = True,
-                descent_throttle: float = DESCENT_THROTTLE) -> Callable[[], LandingEnv]:
+                descent_throttle: float = DESCENT_THROTTLE) -> Callable[[], gym.Env[Any, Any]]:
     """A picklable recipe for one env (a worker process builds its own SITL)."""
 
-    def make() -> LandingEnv:
+    def make() -> gym.Env[Any, Any]:
         return LandingEnv(action_dims, cfg, config_path=config_path, inprocess=inprocess,
                           descent_throttle=descent_throttle)
 
