@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import numpy as np
 import stable_baselines3
@@ -35,6 +35,7 @@ from companion.statistics import wilson_interval
 
 EVAL_SEED = 100_000
 EpisodeHook = Callable[[dict[str, Any]], None]
+ModelMaker = Callable[[Any], PPO]
 CHECKPOINT = "checkpoint.zip"
 CHECKPOINT_STATE = "checkpoint.json"
 
@@ -127,7 +128,7 @@ def save_checkpoint(model: BaseAlgorithm, folder: Path, episodes_done: int) -> N
 
 
 def load_checkpoint(folder: Path, env: LandingEnv | VecEnv,
-                    settings: PpoSettings) -> tuple[PPO, list[dict[str, Any]]] | None:
+                    settings: Any) -> tuple[PPO, list[dict[str, Any]]] | None:
     """The folder's saved model and the episodes it had seen (the log cut back to them), or None."""
     state_file, log_file = folder / CHECKPOINT_STATE, folder / "train_episodes.jsonl"
     if not state_file.exists() or not (folder / CHECKPOINT).exists():
@@ -143,12 +144,17 @@ def load_checkpoint(folder: Path, env: LandingEnv | VecEnv,
     return model, episodes
 
 
-def train(env: LandingEnv | VecEnv, settings: PpoSettings, on_episode: EpisodeHook | None = None,
-          folder: Path | None = None) -> tuple[PPO, list[dict[str, Any]]]:
+def train(env: LandingEnv | VecEnv, settings: Any, on_episode: EpisodeHook | None = None,
+          folder: Path | None = None, make: ModelMaker | None = None,
+          on_load: Callable[[PPO], PPO] | None = None) -> tuple[PPO, list[dict[str, Any]]]:
     """Train for ``settings.episodes`` episodes; the model and one record per episode. With a
-    ``folder``, checkpoint after each update and continue from the folder's checkpoint."""
+    ``folder``, checkpoint after each update and continue from the folder's checkpoint. ``make``
+    builds a fresh model (default :func:`make_model`); ``on_load`` finishes a loaded one."""
     resumed = load_checkpoint(folder, env, settings) if folder is not None else None
-    model, episodes = resumed if resumed is not None else (make_model(env, settings), [])
+    if resumed is not None:
+        model, episodes = (on_load(resumed[0]) if on_load else resumed[0]), resumed[1]
+    else:
+        model, episodes = (make(env) if make else make_model(env, settings)), []
     log = EpisodeLog(settings.episodes, on_episode, episodes, folder)
     left = settings.episodes - len(episodes)
     if left > 0:
@@ -158,7 +164,13 @@ def train(env: LandingEnv | VecEnv, settings: PpoSettings, on_episode: EpisodeHo
     return model, log.episodes
 
 
-def fly(model: PPO, env: LandingEnv, seed: int, index: int = 0) -> dict[str, Any]:
+class Actor(Protocol):
+    """What flies an evaluation: stable-baselines3's ``predict``."""
+
+    def predict(self, observation: Any, *args: Any, **kwargs: Any) -> tuple[np.ndarray, Any]: ...
+
+
+def fly(model: Actor, env: LandingEnv, seed: int, index: int = 0) -> dict[str, Any]:
     """One episode (number ``index``) of the model's deterministic policy from the start ``seed``."""
     obs, _ = env.reset(seed=seed)
     while True:
@@ -168,7 +180,7 @@ def fly(model: PPO, env: LandingEnv, seed: int, index: int = 0) -> dict[str, Any
             return _episode_record(index, info)
 
 
-def evaluate(model: PPO, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> dict[str, Any]:
+def evaluate(model: Actor, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> dict[str, Any]:
     """Success rate on ``episodes`` held-out starts, reported as ``col eval`` reports it."""
     runs = [fly(model, env, seed0 + i, i) for i in range(episodes)]
     return summarise(runs)
