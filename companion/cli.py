@@ -317,6 +317,49 @@ def ppo(
     typer.echo(json.dumps(ev))
 
 
+@app.command()
+def finetune(
+    checkpoint: Annotated[Path, typer.Argument(help="a CoL checkpoint (RUN/checkpoints/episode_NNN.npz of col fly or col experiment)")],
+    episodes: Annotated[int, typer.Option(min=1, help="PPO training episodes")] = 50,
+    eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="held-out starts flown before and after (seeds 100000 + i, as col eval)")] = 100,
+    dataset: Annotated[Path | None, typer.Option("--dataset", help="the person's dataset for the behaviour-cloning term (default: human.csv of the checkpoint's run folder)")] = None,
+    bc_weight: Annotated[float, typer.Option("--bc-weight", min=0.0, help="weight of the behaviour-cloning term at the start (0: the reward alone)")] = 1.0,
+    bc_half_life: Annotated[float, typer.Option("--bc-half-life", min=0.001, help="PPO updates after which the term's weight has halved")] = 10.0,
+    log_std_init: Annotated[float, typer.Option("--log-std-init", help="initial log standard deviation of the actions around the checkpoint's")] = -1.5,
+    learning_rate: Annotated[float, typer.Option("--lr", min=1e-9, max=0.5, help="Adam's learning rate for actor and critic")] = 1e-4,
+    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps")] = 512,
+    seed: Annotated[int, typer.Option(help="PPO's seed; training episode i starts from seed + i")] = 0,
+    out: Annotated[Path | None, typer.Option("--out", help="folder for results.json, finetuned.npz, model.zip (default: runs/<time>-finetune); run again on it to continue")] = None,
+    config: ConfigOpt = None,
+    verbose: VerboseOpt = False,
+) -> None:
+    """RL after CoL: PPO fine-tuning of a human-trained policy (4 actions, sparse success reward plus a
+    decaying behaviour-cloning term), evaluated on the held-out starts before and after."""
+    _setup(verbose)
+    from companion.app import default_run_dir
+    from companion.rl.finetune import FinetuneSettings, run_finetune
+
+    try:
+        cfg = _load(config)
+        settings = FinetuneSettings(episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps,
+                                    learning_rate=learning_rate, log_std_init=log_std_init, bc_weight=bc_weight,
+                                    bc_half_life=bc_half_life)
+        folder = out or default_run_dir(cfg, "finetune")
+        bar = tqdm(total=episodes, initial=min(_episodes_logged(folder), episodes), desc="finetune", unit="ep",
+                   leave=False, disable=None)
+        try:
+            results = run_finetune(checkpoint, settings, folder, cfg, config, dataset, lambda r: bar.update(1))
+        finally:
+            bar.close()
+    except ColError as exc:
+        raise _fail(exc) from None
+    before, after = results["before"], results["after"]
+    typer.echo(f"before {before['successes']}/{before['episodes']} = {before['success_rate']:.0%}; after "
+               f"{results['train']['episodes']} episodes of fine-tuning {after['successes']}/{after['episodes']} = "
+               f"{after['success_rate']:.0%}; policy: {results['finetuned']}")
+    typer.echo(json.dumps({"before": before, "after": after, "train": results["train"]}))
+
+
 def _episodes_logged(folder: Path) -> int:
     """Training episodes a resumable PPO folder's checkpoint has seen (0 for a new folder)."""
     state = folder / "checkpoint.json"

@@ -209,6 +209,9 @@ def run_finetune(checkpoint: Path, settings: FinetuneSettings, out_dir: Path, cf
         return dict(json.loads((out_dir / "results.json").read_text()))
     snapshot, meta = load_checkpoint(checkpoint)
     data_path = dataset or dataset_beside(checkpoint)
+    if settings.bc_weight > 0 and not data_path.is_file():
+        raise ConfigError(f"no human dataset at {data_path} for the behaviour-cloning term; pass --dataset "
+                          "or --bc-weight 0")
     obs, actions = human_dataset(data_path) if settings.bc_weight > 0 else (np.zeros((0, 15)), np.zeros((0, 4)))
     _check_same(out_dir, settings, checkpoint, data_path)
     torch.set_num_threads(cfg.learner.torch_threads)
