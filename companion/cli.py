@@ -276,6 +276,7 @@ def ppo(
     n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps (per env)")] = 2048,
     log_std_init: Annotated[float, typer.Option("--log-std-init", help="initial log standard deviation of the policy (stable-baselines3: 0)")] = 0.0,
     ent_coef: Annotated[float, typer.Option("--ent-coef", min=0.0, help="entropy bonus (stable-baselines3: 0)")] = 0.0,
+    normalize_advantage: Annotated[bool, typer.Option("--normalize-advantage/--no-normalize-advantage", help="normalise advantages per minibatch (stable-baselines3: on)")] = True,
     envs: Annotated[int, typer.Option("--envs", min=1, help="envs stepped at once (more than 1: worker processes)")] = 1,
     mavlink: Annotated[bool, typer.Option("--mavlink", help="fly the SITL over MAVLink sockets instead of in-process (the same episodes, slower)")] = False,
     random: Annotated[bool, typer.Option("--random", help="no training: uniformly random actions on the training starts; writes random.json")] = False,
@@ -302,7 +303,8 @@ def ppo(
             typer.echo(json.dumps(report))
             return
         settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps,
-                               log_std_init=log_std_init, ent_coef=ent_coef, n_envs=envs, inprocess=not mavlink)
+                               log_std_init=log_std_init, ent_coef=ent_coef, normalize_advantage=normalize_advantage,
+                               n_envs=envs, inprocess=not mavlink)
         done = _episodes_logged(folder)
         bar = tqdm(total=episodes, initial=min(done, episodes), desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
         try:

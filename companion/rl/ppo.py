@@ -58,6 +58,7 @@ class PpoSettings:
     gamma: float = 0.99
     log_std_init: float = 0.0
     ent_coef: float = 0.0
+    normalize_advantage: bool = True
     n_envs: int = 1
     inprocess: bool = True
 
@@ -115,7 +116,8 @@ def make_model(env: LandingEnv | VecEnv, settings: PpoSettings) -> PPO:
     """A fresh, seeded PPO with stable-baselines3's MLP policy, on the CPU."""
     return PPO("MlpPolicy", env, n_steps=settings.n_steps, batch_size=settings.batch_size,
                n_epochs=settings.n_epochs, learning_rate=settings.learning_rate, gamma=settings.gamma,
-               ent_coef=settings.ent_coef, policy_kwargs={"log_std_init": settings.log_std_init},
+               ent_coef=settings.ent_coef, normalize_advantage=settings.normalize_advantage,
+               policy_kwargs={"log_std_init": settings.log_std_init},
                seed=settings.seed, device="cpu", verbose=0)
 
 
@@ -250,7 +252,7 @@ def _check_same_settings(out_dir: Path, settings: PpoSettings) -> None:
     """A folder continues only the run it was started for."""
     path = out_dir / "settings.json"
     if path.exists():
-        before = json.loads(path.read_text())
+        before = {**asdict(PpoSettings()), **json.loads(path.read_text())}  # settings added since: their defaults
         if before != asdict(settings):
             raise ConfigError(f"{out_dir} holds a run with other settings ({before}); use another --out")
     else:
