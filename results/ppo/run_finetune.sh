@@ -14,8 +14,17 @@ tune() {  # name checkpoint [options...]
     nice -n 10 col finetune "$ckpt" --episodes 100 --eval-episodes 100 --config configs/paper.toml \
         --out "$D/$name" "$@" > "$D/$name.log" 2>&1
 }
+C4="$D/col4-P1/checkpoints/episode_003.npz"
+# Sensitivity and ablation (ours) from the CoL@4 policy: stable-baselines3's initial action noise
+# (log-std 0) instead of -1.5, and no behaviour-cloning term. The "before" evaluation is the same
+# checkpoint on the same starts, so it is copied from col4-bc1 rather than flown again.
+same_before() { mkdir -p "$D/$1" && cp "$D/col4-bc1/before.json" "$D/$1/before.json"; }
 case "${1:-all}" in
     col8) tune bc1 "$D/col8-P1/checkpoints/episode_007.npz" ;;
-    col4) tune col4-bc1 "$D/col4-P1/checkpoints/episode_003.npz" ;;
-    *) tune bc1 "$D/col8-P1/checkpoints/episode_007.npz"; tune col4-bc1 "$D/col4-P1/checkpoints/episode_003.npz" ;;
+    col4) tune col4-bc1 "$C4" ;;
+    col4-logstd0) same_before col4-logstd0; tune col4-logstd0 "$C4" --episodes 50 --log-std-init 0 ;;
+    col4-nobc) same_before col4-nobc; tune col4-nobc "$C4" --bc-weight 0 ;;
+    *) tune bc1 "$D/col8-P1/checkpoints/episode_007.npz"; tune col4-bc1 "$C4"
+       same_before col4-logstd0; tune col4-logstd0 "$C4" --episodes 50 --log-std-init 0
+       same_before col4-nobc; tune col4-nobc "$C4" --bc-weight 0 ;;
 esac
