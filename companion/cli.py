@@ -363,23 +363,44 @@ def ppo(
     actions: Annotated[int, typer.Option("--actions", min=2, max=4, help="2: pitch, roll (constant descent); 3: + throttle; 4: + yaw")] = 2,
     episodes: Annotated[int, typer.Option(min=1, help="training episodes (the paper: 1000)")] = 1000,
     eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="held-out starts the final model flies (seeds 100000 + i, as col eval)")] = 100,
-    out: Annotated[Path | None, typer.Option("--out", help="folder for model.zip, train_episodes.jsonl, results.json (default: runs/<time>-ppo<actions>)")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="folder for model.zip, train_episodes.jsonl, results.json (default: runs/<time>-ppo<actions>); run again on it to continue an interrupted run")] = None,
     seed: Annotated[int, typer.Option(help="PPO's seed; training episode i starts from seed + i")] = 0,
-    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps")] = 2048,
+    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps (per env)")] = 2048,
+    log_std_init: Annotated[float, typer.Option("--log-std-init", help="initial log standard deviation of the policy (stable-baselines3: 0)")] = 0.0,
+    ent_coef: Annotated[float, typer.Option("--ent-coef", min=0.0, help="entropy bonus (stable-baselines3: 0)")] = 0.0,
+    normalize_advantage: Annotated[bool, typer.Option("--normalize-advantage/--no-normalize-advantage", help="normalise advantages per minibatch (stable-baselines3: on)")] = True,
+    envs: Annotated[int, typer.Option("--envs", min=1, help="envs stepped at once (more than 1: worker processes)")] = 1,
+    mavlink: Annotated[bool, typer.Option("--mavlink", help="fly the SITL over MAVLink sockets instead of in-process (the same episodes, slower)")] = False,
+    random: Annotated[bool, typer.Option("--random", help="no training: uniformly random actions on the training starts; writes random.json")] = False,
     config: ConfigOpt = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's PPO baseline: sparse success reward, trained in the lockstep SITL, then evaluated."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.rl.ppo import PpoSettings, run_ppo
+    from companion.rl.ppo import PpoSettings, random_policy, run_ppo, summarise
 
     try:
         cfg = _load(config)
-        settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps)
-        bar = tqdm(total=episodes, desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
+        folder = out or default_run_dir(cfg, f"ppo{actions}")
+        if random:
+            bar = tqdm(total=episodes, desc=f"random {actions} actions", unit="ep", leave=False, disable=None)
+            try:
+                runs = random_policy(actions, episodes, cfg, config, seed, lambda r: bar.update(1))
+            finally:
+                bar.close()
+            report = {"action_dims": actions, "seed0": seed, **summarise(runs)}
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "random.json").write_text(json.dumps({"summary": report, "episodes": runs}, indent=1) + "\n")
+            typer.echo(json.dumps(report))
+            return
+        settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps,
+                               log_std_init=log_std_init, ent_coef=ent_coef, normalize_advantage=normalize_advantage,
+                               n_envs=envs, inprocess=not mavlink)
+        done = _episodes_logged(folder)
+        bar = tqdm(total=episodes, initial=min(done, episodes), desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
         try:
-            results = run_ppo(settings, out or default_run_dir(cfg, f"ppo{actions}"), cfg, config, lambda r: bar.update(1))
+            results = run_ppo(settings, folder, cfg, config, lambda r: bar.update(1))
         finally:
             bar.close()
     except ColError as exc:
@@ -388,6 +409,55 @@ def ppo(
     typer.echo(f"trained {results['train']['episodes']} episodes in {results['train']['wall_s']:.0f} s; final policy "
                f"{ev['successes']}/{ev['episodes']} = {ev['success_rate']:.0%} (95% CI {ev['ci95'][0]:.0%}-{ev['ci95'][1]:.0%})")
     typer.echo(json.dumps(ev))
+
+
+@app.command()
+def finetune(
+    checkpoint: Annotated[Path, typer.Argument(help="a CoL checkpoint (RUN/checkpoints/episode_NNN.npz of col fly or col experiment)")],
+    episodes: Annotated[int, typer.Option(min=1, help="PPO training episodes")] = 50,
+    eval_episodes: Annotated[int, typer.Option("--eval-episodes", min=1, help="held-out starts flown before and after (seeds 100000 + i, as col eval)")] = 100,
+    dataset: Annotated[Path | None, typer.Option("--dataset", help="the person's dataset for the behaviour-cloning term (default: human.csv of the checkpoint's run folder)")] = None,
+    bc_weight: Annotated[float, typer.Option("--bc-weight", min=0.0, help="weight of the behaviour-cloning term at the start (0: the reward alone)")] = 1.0,
+    bc_half_life: Annotated[float, typer.Option("--bc-half-life", min=0.001, help="PPO updates after which the term's weight has halved")] = 10.0,
+    log_std_init: Annotated[float, typer.Option("--log-std-init", help="initial log standard deviation of the actions around the checkpoint's")] = -1.5,
+    learning_rate: Annotated[float, typer.Option("--lr", min=1e-9, max=0.5, help="Adam's learning rate for actor and critic")] = 1e-4,
+    n_steps: Annotated[int, typer.Option("--n-steps", min=2, help="PPO rollout length in steps")] = 512,
+    seed: Annotated[int, typer.Option(help="PPO's seed; training episode i starts from seed + i")] = 0,
+    out: Annotated[Path | None, typer.Option("--out", help="folder for results.json, finetuned.npz, model.zip (default: runs/<time>-finetune); run again on it to continue")] = None,
+    config: ConfigOpt = None,
+    verbose: VerboseOpt = False,
+) -> None:
+    """RL after CoL: PPO fine-tuning of a human-trained policy (4 actions, sparse success reward plus a
+    decaying behaviour-cloning term), evaluated on the held-out starts before and after."""
+    _setup(verbose)
+    from companion.app import default_run_dir
+    from companion.rl.finetune import FinetuneSettings, run_finetune
+
+    try:
+        cfg = _load(config)
+        settings = FinetuneSettings(episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps,
+                                    learning_rate=learning_rate, log_std_init=log_std_init, bc_weight=bc_weight,
+                                    bc_half_life=bc_half_life)
+        folder = out or default_run_dir(cfg, "finetune")
+        bar = tqdm(total=episodes, initial=min(_episodes_logged(folder), episodes), desc="finetune", unit="ep",
+                   leave=False, disable=None)
+        try:
+            results = run_finetune(checkpoint, settings, folder, cfg, config, dataset, lambda r: bar.update(1))
+        finally:
+            bar.close()
+    except ColError as exc:
+        raise _fail(exc) from None
+    before, after = results["before"], results["after"]
+    typer.echo(f"before {before['successes']}/{before['episodes']} = {before['success_rate']:.0%}; after "
+               f"{results['train']['episodes']} episodes of fine-tuning {after['successes']}/{after['episodes']} = "
+               f"{after['success_rate']:.0%}; policy: {results['finetuned']}")
+    typer.echo(json.dumps({"before": before, "after": after, "train": results["train"]}))
+
+
+def _episodes_logged(folder: Path) -> int:
+    """Training episodes a resumable PPO folder's checkpoint has seen (0 for a new folder)."""
+    state = folder / "checkpoint.json"
+    return int(json.loads(state.read_text())["episodes"]) if state.exists() else 0
 
 
 if __name__ == "__main__":

@@ -26,12 +26,20 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from companion.app import NoHuman, RunOptions, open_run_camera, simulator_client, vehicle_connection
+from companion.app import (
+    NoHuman,
+    RunOptions,
+    Vehicle,
+    open_run_camera,
+    simulator_client,
+    vehicle_connection,
+)
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import ColError, ConfigError, LinkError
+from companion.experiment.inprocess import inprocess_vehicle
 from companion.link import open_link
 from companion.link.base import VehicleSnapshot
 from companion.simulator import SimulatorClient
@@ -43,6 +51,7 @@ log = logging.getLogger(__name__)
 ACTION_AXES: tuple[str, ...] = ("pitch", "roll", "throttle", "yaw")
 """What the action's entries control, in order; an n-action env controls the first n."""
 DESCENT_THROTTLE = -0.5
+IN_PROCESS_LINK_LOST_S = 1e9
 """Constant throttle stick of the 2-action task: about 0.47 m/s down with the default
 commands (deadband 0.05, v_z_max 1 m/s), 8 m to the pad in about 180 steps."""
 
@@ -67,31 +76,43 @@ def stick_values(action: np.ndarray, action_dims: int, descent_throttle: float) 
     return np.array([roll, pitch, yaw, throttle])
 
 
+def _never_lost(cfg: CompanionConfig) -> CompanionConfig:
+    """In one process the link cannot be lost, and the time the agent takes between steps (a PPO
+    update: seconds on a busy machine) is no silence of the vehicle: no wall-clock link loss."""
+    return cfg.model_copy(update={"link": cfg.link.model_copy(update={"link_lost_s": IN_PROCESS_LINK_LOST_S})})
+
+
 class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
     """Land on the pad from the paper's starts; one step = one control tick in lockstep.
 
     Without ``connection`` it starts its own lockstep SITL (stopped by :meth:`close`). With
     ``connection`` (a MAVLink connection string to a lockstep SITL) it also needs
     ``simulator`` (HOST:PORT of that SITL's control surface) for resets and ground truth.
+    With ``inprocess=True`` the SITL runs in this process and thread
+    (:mod:`companion.experiment.inprocess`: the same server, link and camera code, only the
+    transport replaced): the same episodes, a fraction of the CPU per step.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
 
     def __init__(self, action_dims: int = 2, cfg: CompanionConfig | None = None, *,
                  descent_throttle: float = DESCENT_THROTTLE, connection: str | None = None,
-                 simulator: str | None = None, config_path: Path | None = None) -> None:
+                 simulator: str | None = None, config_path: Path | None = None, inprocess: bool = False) -> None:
         if action_dims not in (2, 3, 4):
             raise ConfigError(f"action_dims must be 2 (pitch, roll), 3 (+ throttle) or 4 (+ yaw), got {action_dims}")
         if not -1.0 <= descent_throttle <= 0.0:
             raise ConfigError(f"descent_throttle is a stick value in [-1, 0] (down), got {descent_throttle}")
         if connection is not None and simulator is None:
             raise ConfigError("an external SITL needs --simulator HOST:PORT too: resets and the reward come from its control surface")
+        if inprocess and connection is not None:
+            raise ConfigError("an in-process env flies its own SITL; it takes no connection")
         self.cfg = cfg or CompanionConfig()
         self.action_dims = action_dims
         self.descent_throttle = descent_throttle
         self.max_steps = self.cfg.session.max_steps
         self.action_space = gym.spaces.Box(-1.0, 1.0, (action_dims,), dtype=np.float32)
         self.observation_space = observation_space()
+        self.inprocess = inprocess
         self._stack = contextlib.ExitStack()
         try:
             self._runner, self._simulator = self._connect(RunOptions(connection=connection, simulator=simulator,
@@ -105,7 +126,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._done = True
         self._last_obs = np.zeros(OBS_DIM, dtype=np.float32)
 
-    def _connect(self, opts: RunOptions) -> tuple[EpisodeRunner, SimulatorClient]:
+    def _open_sockets(self, opts: RunOptions) -> Vehicle:
         """SITL (ours or given), link, control surface and camera, as ``col eval`` wires them."""
         connection, sitl = self._stack.enter_context(vehicle_connection(self.cfg, opts, lockstep=True))
         link = open_link(self.cfg.link.model_copy(update={"connection": connection}))
@@ -117,6 +138,16 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         camera = open_run_camera(self.cfg, sitl, link)
         if camera is not None:
             self._stack.callback(camera.close)
+        return Vehicle(link, simulator, camera)
+
+    def _connect(self, opts: RunOptions) -> tuple[EpisodeRunner, SimulatorClient]:
+        """The vehicle (over MAVLink sockets or in-process) and the session's episode loop on it."""
+        if self.inprocess:
+            vehicle = self._stack.enter_context(inprocess_vehicle(_never_lost(self.cfg), opts, True, Path(".")))
+        else:
+            vehicle = self._open_sockets(opts)
+        link, simulator, camera = vehicle.link, vehicle.simulator, vehicle.camera
+        assert simulator is not None  # both openers give the SITL's control surface
         parts = EpisodeParts(
             link=link, observer=Observer(camera, PadDetector(self.cfg.perception), (320, 240), self.cfg.perception.frame_timeout_s),
             mapper=CommandMapper(self.cfg.commands), human=NoHuman(), fence=Geofence.from_config(self.cfg.safety),

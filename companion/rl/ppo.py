@@ -2,8 +2,10 @@
 
 stable-baselines3's PPO (``MlpPolicy``, CPU, seeded) learns in :class:`LandingEnv` for a number
 of *episodes* (the paper: 1000), with 2, 3 or 4 actions. Training episode ``i`` starts from
-the SITL's seed ``seed + i``; the final model is then flown deterministically on the held-out
-starts of ``col eval`` (seeds ``100_000 + i``). Everything measured goes to one JSON file.
+the SITL's seed ``seed + i`` (one env); the final model is then flown deterministically on the
+held-out starts of ``col eval`` (seeds ``100_000 + i``). Everything measured goes to one JSON
+file. A run folder is resumable: the model is saved after every PPO update with the number of
+episodes logged by then, and a run started again on the folder continues from there.
 """
 
 from __future__ import annotations
@@ -15,27 +17,34 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import numpy as np
 import stable_baselines3
 import torch
 from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
 
 from companion.config import CompanionConfig
 from companion.errors import ConfigError
 from companion.rl.gym_env import LandingEnv
+from companion.rl.vec_env import make_vec_env
 from companion.statistics import wilson_interval
 
 EVAL_SEED = 100_000
 EpisodeHook = Callable[[dict[str, Any]], None]
+ModelMaker = Callable[[Any], PPO]
+CHECKPOINT = "checkpoint.zip"
+CHECKPOINT_STATE = "checkpoint.json"
 
 
 @dataclass(frozen=True)
 class PpoSettings:
     """One PPO baseline run. PPO's hyperparameters are stable-baselines3's defaults unless set
-    (the paper does not give its own)."""
+    (the paper does not give its own). ``log_std_init`` (the initial log standard deviation of
+    the Gaussian policy) and ``ent_coef`` are stable-baselines3's 0 and 0 by default."""
 
     action_dims: int = 2
     episodes: int = 1000
@@ -47,6 +56,11 @@ class PpoSettings:
     n_epochs: int = 10
     learning_rate: float = 3e-4
     gamma: float = 0.99
+    log_std_init: float = 0.0
+    ent_coef: float = 0.0
+    normalize_advantage: bool = True
+    n_envs: int = 1
+    inprocess: bool = True
 
     def __post_init__(self) -> None:
         if self.action_dims not in (2, 3, 4):
@@ -60,17 +74,27 @@ class PpoSettings:
             raise ConfigError(f"learning_rate must be in (0, 1) and gamma in (0, 1], got {self.learning_rate}, {self.gamma}")
         if self.seed < 0 or self.eval_seed < 0:
             raise ConfigError("seeds must be >= 0")
+        if not -5.0 <= self.log_std_init <= 1.0 or self.ent_coef < 0.0 or self.n_envs < 1:
+            raise ConfigError(f"log_std_init must be in [-5, 1], ent_coef >= 0 and n_envs >= 1, got "
+                              f"{self.log_std_init}, {self.ent_coef}, {self.n_envs}")
 
 
 class EpisodeLog(BaseCallback):
     """Keeps each finished training episode's outcome and stops after ``max_episodes``."""
 
-    def __init__(self, max_episodes: int, on_episode: EpisodeHook | None = None) -> None:
+    def __init__(self, max_episodes: int, on_episode: EpisodeHook | None = None,
+                 episodes: list[dict[str, Any]] | None = None, checkpoint_dir: Path | None = None) -> None:
         super().__init__()
         self.max_episodes = max_episodes
         self.on_episode = on_episode
-        self.episodes: list[dict[str, Any]] = []
-        self._wall0 = time.monotonic()
+        self.episodes: list[dict[str, Any]] = list(episodes or [])
+        self.checkpoint_dir = checkpoint_dir
+        self._wall0 = time.monotonic() - (self.episodes[-1]["wall_s"] if self.episodes else 0.0)
+
+    def _on_rollout_end(self) -> None:
+        """After each rollout (just before PPO's update from it) the model so far, for resuming."""
+        if self.checkpoint_dir is not None:
+            save_checkpoint(self.model, self.checkpoint_dir, len(self.episodes))
 
     def _on_step(self) -> bool:
         for done, info in zip(self.locals["dones"], self.locals["infos"]):
@@ -88,23 +112,67 @@ def _episode_record(index: int, info: dict[str, Any]) -> dict[str, Any]:
     return {"episode": index, **{k: info.get(k) for k in keys}}
 
 
-def make_model(env: LandingEnv, settings: PpoSettings) -> PPO:
+def make_model(env: LandingEnv | VecEnv, settings: PpoSettings) -> PPO:
     """A fresh, seeded PPO with stable-baselines3's MLP policy, on the CPU."""
     return PPO("MlpPolicy", env, n_steps=settings.n_steps, batch_size=settings.batch_size,
                n_epochs=settings.n_epochs, learning_rate=settings.learning_rate, gamma=settings.gamma,
+               ent_coef=settings.ent_coef, normalize_advantage=settings.normalize_advantage,
+               policy_kwargs={"log_std_init": settings.log_std_init},
                seed=settings.seed, device="cpu", verbose=0)
 
 
-def train(env: LandingEnv, settings: PpoSettings,
-          on_episode: EpisodeHook | None = None) -> tuple[PPO, list[dict[str, Any]]]:
-    """Train for ``settings.episodes`` episodes; the model and one record per episode."""
-    model = make_model(env, settings)
-    log = EpisodeLog(settings.episodes, on_episode)
-    model.learn(total_timesteps=settings.episodes * env.max_steps + settings.n_steps, callback=log)
+def save_checkpoint(model: BaseAlgorithm, folder: Path, episodes_done: int) -> None:
+    """The model and how many logged episodes it has seen, each written atomically."""
+    model.save(folder / "checkpoint.tmp.zip")
+    (folder / "checkpoint.tmp.zip").replace(folder / CHECKPOINT)
+    (folder / "checkpoint.tmp.json").write_text(json.dumps({"episodes": episodes_done}))
+    (folder / "checkpoint.tmp.json").replace(folder / CHECKPOINT_STATE)
+
+
+def load_checkpoint(folder: Path, env: LandingEnv | VecEnv,
+                    settings: Any) -> tuple[PPO, list[dict[str, Any]]] | None:
+    """The folder's saved model and the episodes it had seen (the log cut back to them), or None."""
+    state_file, log_file = folder / CHECKPOINT_STATE, folder / "train_episodes.jsonl"
+    if not state_file.exists() or not (folder / CHECKPOINT).exists():
+        return None
+    done = int(json.loads(state_file.read_text())["episodes"])
+    lines = log_file.read_text().splitlines() if log_file.exists() else []
+    if len(lines) < done:
+        raise ConfigError(f"{log_file} has {len(lines)} episodes but the checkpoint saw {done}: not resumable")
+    episodes = [json.loads(line) for line in lines[:done]]
+    log_file.write_text("".join(line + "\n" for line in lines[:done]))
+    model = PPO.load(folder / CHECKPOINT, env=env, device="cpu")
+    model.set_random_seed(settings.seed + done)  # training starts continue at seed + episodes done
+    return model, episodes
+
+
+def train(env: LandingEnv | VecEnv, settings: Any, on_episode: EpisodeHook | None = None,
+          folder: Path | None = None, make: ModelMaker | None = None,
+          on_load: Callable[[PPO], PPO] | None = None) -> tuple[PPO, list[dict[str, Any]]]:
+    """Train for ``settings.episodes`` episodes; the model and one record per episode. With a
+    ``folder``, checkpoint after each update and continue from the folder's checkpoint. ``make``
+    builds a fresh model (default :func:`make_model`); ``on_load`` finishes a loaded one."""
+    resumed = load_checkpoint(folder, env, settings) if folder is not None else None
+    if resumed is not None:
+        model, episodes = (on_load(resumed[0]) if on_load else resumed[0]), resumed[1]
+    else:
+        model, episodes = (make(env) if make else make_model(env, settings)), []
+    log = EpisodeLog(settings.episodes, on_episode, episodes, folder)
+    left = settings.episodes - len(episodes)
+    if left > 0:
+        max_steps = env.get_attr("max_steps")[0] if isinstance(env, VecEnv) else env.max_steps
+        model.learn(total_timesteps=left * max_steps + settings.n_steps * settings.n_envs, callback=log,
+                    reset_num_timesteps=resumed is None)
     return model, log.episodes
 
 
-def fly(model: PPO, env: LandingEnv, seed: int, index: int = 0) -> dict[str, Any]:
+class Actor(Protocol):
+    """What flies an evaluation: stable-baselines3's ``predict``."""
+
+    def predict(self, observation: Any, *args: Any, **kwargs: Any) -> tuple[np.ndarray, Any]: ...
+
+
+def fly(model: Actor, env: LandingEnv, seed: int, index: int = 0) -> dict[str, Any]:
     """One episode (number ``index``) of the model's deterministic policy from the start ``seed``."""
     obs, _ = env.reset(seed=seed)
     while True:
@@ -114,7 +182,7 @@ def fly(model: PPO, env: LandingEnv, seed: int, index: int = 0) -> dict[str, Any
             return _episode_record(index, info)
 
 
-def evaluate(model: PPO, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> dict[str, Any]:
+def evaluate(model: Actor, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> dict[str, Any]:
     """Success rate on ``episodes`` held-out starts, reported as ``col eval`` reports it."""
     runs = [fly(model, env, seed0 + i, i) for i in range(episodes)]
     return summarise(runs)
@@ -137,9 +205,10 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def learning_curve(episodes: list[dict[str, Any]], blocks: int = 10) -> list[dict[str, Any]]:
-    """Training success rate (stochastic policy) in consecutive blocks of episodes."""
-    size = max(1, len(episodes) // blocks)
+def learning_curve(episodes: list[dict[str, Any]], blocks: int = 10, size: int | None = None) -> list[dict[str, Any]]:
+    """Training success rate (stochastic policy) in consecutive blocks of episodes (``blocks``
+    of them, or blocks of ``size`` episodes)."""
+    size = size or max(1, len(episodes) // blocks)
     curve = []
     for start in range(0, len(episodes), size):
         block = episodes[start:start + size]
@@ -150,25 +219,67 @@ def learning_curve(episodes: list[dict[str, Any]], blocks: int = 10) -> list[dic
 
 def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = None,
             config_path: Path | None = None, on_episode: EpisodeHook | None = None) -> dict[str, Any]:
-    """Train, save ``model.zip`` and ``train_episodes.jsonl``, evaluate, write ``results.json``."""
+    """Train, save ``model.zip`` and ``train_episodes.jsonl``, evaluate, write ``results.json``.
+    A folder with ``results.json`` is done (returned as is); one with a checkpoint continues."""
     cfg = cfg or CompanionConfig()
     out_dir.mkdir(parents=True, exist_ok=True)
+    if (out_dir / "results.json").exists():
+        return dict(json.loads((out_dir / "results.json").read_text()))
+    _check_same_settings(out_dir, settings)
     torch.set_num_threads(cfg.learner.torch_threads)
-    env = LandingEnv(settings.action_dims, cfg, config_path=config_path)
+    venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess)
     try:
-        with (out_dir / "train_episodes.jsonl").open("w") as log_file:
-            wall0 = time.monotonic()
-            model, episodes = train(env, settings, _logged(log_file, on_episode))
-            train_s = time.monotonic() - wall0
+        wall0 = time.monotonic()
+        with (out_dir / "train_episodes.jsonl").open("a") as log_file:
+            model, episodes = train(venv, settings, _logged(log_file, on_episode), out_dir)
+        train_s = float(episodes[-1]["wall_s"]) if episodes else time.monotonic() - wall0
         model.save(out_dir / "model.zip")
+    finally:
+        venv.close()
+    eval_env = LandingEnv(settings.action_dims, cfg, config_path=config_path, inprocess=settings.inprocess)
+    try:
         wall1 = time.monotonic()
-        report = evaluate(model, env, settings.eval_episodes, settings.eval_seed)
+        report = evaluate(model, eval_env, settings.eval_episodes, settings.eval_seed)
         eval_s = time.monotonic() - wall1
     finally:
-        env.close()
+        eval_env.close()
     results = _results(settings, episodes, report, train_s, eval_s, out_dir)
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     return results
+
+
+def _check_same_settings(out_dir: Path, settings: PpoSettings) -> None:
+    """A folder continues only the run it was started for."""
+    path = out_dir / "settings.json"
+    if path.exists():
+        before = {**asdict(PpoSettings()), **json.loads(path.read_text())}  # settings added since: their defaults
+        if before != asdict(settings):
+            raise ConfigError(f"{out_dir} holds a run with other settings ({before}); use another --out")
+    else:
+        path.write_text(json.dumps(asdict(settings)) + "\n")
+
+
+def random_policy(action_dims: int, episodes: int, cfg: CompanionConfig | None = None,
+                  config_path: Path | None = None, seed: int = 0,
+                  on_episode: EpisodeHook | None = None) -> list[dict[str, Any]]:
+    """Uniformly random actions in [-1, 1] on the training starts ``seed + i`` (what PPO's
+    exploration meets at first): one record per episode."""
+    rng = np.random.default_rng(seed)
+    env = LandingEnv(action_dims, cfg or CompanionConfig(), config_path=config_path, inprocess=True)
+    runs = []
+    try:
+        for i in range(episodes):
+            env.reset(seed=seed + i)
+            while True:
+                _, _, terminated, truncated, info = env.step(rng.uniform(-1.0, 1.0, action_dims).astype(np.float32))
+                if terminated or truncated:
+                    break
+            runs.append(_episode_record(i, info))
+            if on_episode is not None:
+                on_episode(runs[-1])
+    finally:
+        env.close()
+    return runs
 
 
 def _results(settings: PpoSettings, episodes: list[dict[str, Any]], report: dict[str, Any],
@@ -182,6 +293,7 @@ def _results(settings: PpoSettings, episodes: list[dict[str, Any]], report: dict
             "wall_s": round(train_s, 1),
             "wall_s_per_1000_episodes": round(1000 * train_s / max(1, len(episodes)), 1),
             "learning_curve": learning_curve(episodes),
+            "learning_curve_50": learning_curve(episodes, size=50),
         },
         "eval": {**report, "seed0": settings.eval_seed, "wall_s": round(eval_s, 1)},
         "model": str(out_dir / "model.zip"),

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from stable_baselines3 import PPO
 
+from companion.config import CompanionConfig
 from companion.errors import ConfigError
-from companion.rl.ppo import EVAL_SEED, PpoSettings, learning_curve, run_ppo, summarise
+from companion.rl.ppo import EVAL_SEED, PpoSettings, learning_curve, make_model, run_ppo, summarise
+from companion.rl.vec_env import make_vec_env
 
 TINY = {"episodes": 2, "eval_episodes": 2, "n_steps": 64, "batch_size": 32, "n_epochs": 2}
 
@@ -71,3 +73,40 @@ def test_training_repeats_exactly_for_a_seed(tmp_path: Path) -> None:
     first["eval"].pop("wall_s")
     second["eval"].pop("wall_s")
     assert first["eval"] == second["eval"]
+
+
+class Interrupt(Exception):
+    """Stands in for Ctrl-C in the middle of training."""
+
+
+@pytest.mark.e2e
+def test_an_interrupted_run_continues_from_its_folder(tmp_path: Path) -> None:
+    settings = PpoSettings(**{**TINY, "episodes": 4}, log_std_init=-1.0, ent_coef=0.01)
+
+    def stop_after_two(record: dict) -> None:
+        if record["episode"] == 2:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        run_ppo(settings, tmp_path, on_episode=stop_after_two)
+    saved = json.loads((tmp_path / "checkpoint.json").read_text())["episodes"]
+    assert 1 <= saved <= 2 and not (tmp_path / "results.json").exists()
+    results = run_ppo(settings, tmp_path)
+    records = _records(tmp_path)
+    assert [r["episode"] for r in records] == [0, 1, 2, 3]
+    assert [r["seed"] for r in records] == [0, 1, 2, 3]  # training starts go on at seed + episodes done
+    assert results["train"]["episodes"] == 4 and results["settings"]["log_std_init"] == -1.0
+    assert run_ppo(settings, tmp_path) == results  # a finished folder is not run again
+    (tmp_path / "results.json").unlink()
+    with pytest.raises(ConfigError, match="other settings"):
+        run_ppo(PpoSettings(**{**TINY, "episodes": 5}), tmp_path)
+
+
+def test_initial_log_std_and_entropy_bonus_reach_the_model() -> None:
+    venv = make_vec_env(2, CompanionConfig())
+    try:
+        model = make_model(venv, PpoSettings(**TINY, log_std_init=-1.5, ent_coef=0.02))
+        assert model.ent_coef == 0.02
+        np.testing.assert_allclose(model.policy.log_std.detach().numpy(), [-1.5, -1.5])
+    finally:
+        venv.close()

@@ -1,0 +1,47 @@
+"""Several landing envs at once, for PPO and the speed bench.
+
+Each env is a :class:`~companion.rl.gym_env.LandingEnv` flying its own SITL in-process (no
+sockets: about half the CPU per step of the MAVLink path, the same episodes). With more than
+one env, each runs in a worker process (stable-baselines3's ``SubprocVecEnv``, ``forkserver``):
+the SITL is single-threaded Python, so processes are how it uses more than one core.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+
+from companion.config import CompanionConfig
+from companion.errors import ConfigError
+from companion.rl.gym_env import DESCENT_THROTTLE, LandingEnv
+
+
+def env_factory(action_dims: int, cfg: CompanionConfig, config_path: Path | None, *, inprocess: bool = True,
+                descent_throttle: float = DESCENT_THROTTLE) -> Callable[[], gym.Env[Any, Any]]:
+    """A picklable recipe for one env (a worker process builds its own SITL)."""
+
+    def make() -> gym.Env[Any, Any]:
+        return LandingEnv(action_dims, cfg, config_path=config_path, inprocess=inprocess,
+                          descent_throttle=descent_throttle)
+
+    return make
+
+
+def make_vec_env(action_dims: int, cfg: CompanionConfig, n_envs: int = 1, config_path: Path | None = None,
+                 *, inprocess: bool = True, subprocess: bool | None = None) -> VecEnv:
+    """``n_envs`` envs; in worker processes when ``subprocess`` (default: when ``n_envs > 1``).
+
+    stable-baselines3 seeds env ``k`` with ``seed + k`` on the first reset; later resets continue
+    each env's own seeds (``LandingEnv.reset`` without a seed), so starts of different envs can
+    repeat: they are training starts, never the held-out ones.
+    """
+    if n_envs < 1:
+        raise ConfigError(f"n_envs must be at least 1, got {n_envs}")
+    factories = [env_factory(action_dims, cfg, config_path, inprocess=inprocess) for _ in range(n_envs)]
+    if subprocess if subprocess is not None else n_envs > 1:
+        return SubprocVecEnv(factories, start_method="forkserver")
+    return DummyVecEnv(factories)

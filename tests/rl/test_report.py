@@ -1,0 +1,43 @@
+"""The PPO grid report: curves per 50 episodes with a band over seeds, final evaluations, CoL."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from companion.rl.report import col_result, curve_band, plot, read_runs, summary
+
+
+def write_run(folder: Path, successes: list[bool], final: dict | None = None) -> None:
+    folder.mkdir(parents=True)
+    lines = [json.dumps({"episode": i, "seed": i, "steps": 200, "outcome": "touchdown", "success": s,
+                         "touchdown_distance_m": 0.2 if s else 3.0, "wall_s": float(i)}) for i, s in enumerate(successes)]
+    (folder / "train_episodes.jsonl").write_text("\n".join(lines) + "\n")
+    if final is not None:
+        (folder / "results.json").write_text(json.dumps(final))
+
+
+def test_curve_band_is_mean_min_max_over_the_seeds_that_finished_each_block(tmp_path: Path) -> None:
+    write_run(tmp_path / "a2-s0", [False] * 50 + [True] * 50)
+    write_run(tmp_path / "a2-s1", [False] * 50 + [True] * 25 + [False] * 25 + [True] * 10)  # 3rd block unfinished
+    write_run(tmp_path / "notarun", [True])
+    runs = read_runs(tmp_path)
+    assert set(runs) == {2} and set(runs[2]) == {0, 1}
+    band = curve_band(runs[2])
+    assert band == [{"first_episode": 0, "seeds": 2, "mean": 0.0, "min": 0.0, "max": 0.0},
+                    {"first_episode": 50, "seeds": 2, "mean": 0.75, "min": 0.5, "max": 1.0}]
+
+
+def test_summary_and_plot_with_final_evaluations_and_col(tmp_path: Path) -> None:
+    final = {"eval": {"episodes": 100, "successes": 7, "success_rate": 0.07, "ci95": [0.03, 0.14], "touchdowns": 90,
+                      "timeouts": 5, "fence": 5}, "train": {"successes": 3, "wall_s": 10.0}}
+    write_run(tmp_path / "grid" / "a3-s0", [False] * 100, final)
+    col = tmp_path / "results.jsonl"
+    rows = [{"trial": {"condition": c, "interactions": n}, "status": "ok", "eval_runs": 100, "eval_successes": k}
+            for c, n, k in [("col", 20, 90), ("col", 20, 80), ("demo", 20, 10), ("col", 8, 0)]]
+    col.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    assert col_result(col) == {"interactions": 20, "trials": 2, "success_rate_mean": 0.85, "success_rate_sd": 0.0707}
+    result = summary(tmp_path / "grid", None, col)
+    assert result["final_policies"]["a3-s0"]["successes"] == 7 and result["training_successes"] == {"a3": {"0": 0}}
+    plot(result, tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").read_bytes()[:4] == b"\x89PNG"
