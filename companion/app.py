@@ -32,7 +32,8 @@ from companion.learning.checkpoint import load_checkpoint, save_checkpoint
 from companion.learning.dataset import HumanDataset, load_csv
 from companion.learning.fit import Fit, fit_of
 from companion.learning.learner import Learner
-from companion.learning.runners import make_runner
+from companion.learning.learner_process import LearnerProcess
+from companion.learning.runners import BudgetedLearner, LearnerThread, make_runner
 from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
@@ -301,9 +302,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
     cfg = asking_config(cfg, opts.condition)
-    synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
-    own_lockstep = synthetic and not opts.connection and _sitl_autopilot(opts.config_path) == "px4"
-    lockstep = opts.lockstep if opts.lockstep is not None else own_lockstep
+    lockstep = _lockstep_for(opts)
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
     initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
     prepare_run_dir(run_dir)  # unwritable: a clear error before any SITL, link or file
@@ -335,9 +334,8 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             cfg=cfg.session, lockstep=lockstep, simulator=simulator,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
             control=control,
+            asker=HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz) if cfg.ask.enabled else None,
         )
-        if cfg.ask.enabled:
-            parts.asker = HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz)
         if control is not None:
             control.started(opened, learner, dataset)
         episode_runner = EpisodeRunner(parts)
@@ -351,14 +349,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                 if control is not None and not control.before_episode(i, phase):
                     break
                 record = episode_runner.run(i, phase, seed0 + k)
-                dataset.sync()
-                if runner is not None:
-                    runner.between_episodes()
-                    record = _with_fit(record, fit_of(learner.latest_snapshot, dataset.view()))
-                if opts.record:  # checkpoint first: a record line always has its checkpoint (eval: none)
-                    save_checkpoint(run_dir / "checkpoints" / f"episode_{i:03d}.npz", learner.latest_snapshot,
-                                    cfg.learner, dataset_size=len(dataset), episode=i, condition=opts.condition,
-                                    extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
+                record = _finish_episode(record, phase, run_dir, opts, cfg, learner, dataset, runner)
                 log_file.write(json.dumps(record.to_json_dict()) + "\n")
                 log_file.flush()
                 if parts.asker is not None and opts.record:
@@ -377,6 +368,30 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     if recorder is not None:
         write_pictures(recorder, result, cfg, opts.condition)
     return result
+
+
+def _finish_episode(record: EpisodeRecord, phase: Phase, run_dir: Path, opts: RunOptions, cfg: CompanionConfig,
+                    learner: Learner, dataset: HumanDataset, runner: BudgetedLearner | LearnerThread | LearnerProcess | None) -> EpisodeRecord:
+    """After an episode: the data on disk, the learner's between-episode updates, the policy's
+    fit and its checkpoint (first: a record line always has its checkpoint; eval: none)."""
+    dataset.sync()
+    if runner is not None:
+        runner.between_episodes()
+        record = _with_fit(record, fit_of(learner.latest_snapshot, dataset.view()))
+    if opts.record:
+        i = record.episode
+        save_checkpoint(run_dir / "checkpoints" / f"episode_{i:03d}.npz", learner.latest_snapshot,
+                        cfg.learner, dataset_size=len(dataset), episode=i, condition=opts.condition,
+                        extra={"phase": phase.value, "outcome": record.outcome, "success": record.success})
+    return record
+
+
+def _lockstep_for(opts: RunOptions) -> bool:
+    """As asked; else lockstep for a synthetic pilot in our own SITL's PX4 personality."""
+    if opts.lockstep is not None:
+        return opts.lockstep
+    synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
+    return synthetic and not opts.connection and _sitl_autopilot(opts.config_path) == "px4"
 
 
 def _sitl_autopilot(config_path: Path | None) -> str:

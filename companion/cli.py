@@ -233,7 +233,7 @@ def demo(
             last = more.run_dir / "checkpoints" / f"episode_{more.records[-1].episode:03d}.npz"
         if recorder is not None:
             write_pictures(recorder, trained, cfg, "demo")
-        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config, pictures)
+        report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config, pictures=pictures)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:

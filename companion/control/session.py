@@ -175,6 +175,13 @@ class EpisodeRunner:
         self._tick_start_s: float | None = None
         self.step_latencies_s: list[float] = []
         self._dialect = parts.dialect
+        self._hold_ned: tuple[float, float, float, float] | None = None
+        self._landing = False
+        self._ask_summary: AskSummary | None = None
+        self.trace: list[tuple[int, float, str]] = []
+        """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
+        if parts.asker is not None:
+            parts.asker.on_event = self._on_ask_event
 
     @property
     def dialect(self) -> Dialect:
@@ -189,13 +196,6 @@ class EpisodeRunner:
     def leave_safe(self) -> str:
         """The configured end-of-run state (land or hold), after a run or a failed episode."""
         return leave_safe(self.p.link, self.dialect, self.p.cfg.end_of_run)
-        self._hold_ned: tuple[float, float, float, float] | None = None
-        self._landing = False
-        self._ask_summary: AskSummary | None = None
-        self.trace: list[tuple[int, float, str]] = []
-        """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
-        if parts.asker is not None:
-            parts.asker.on_event = self._on_ask_event
 
     # ----- frames ----------------------------------------------------------------------------
     def _next_snapshot(self) -> VehicleSnapshot | None:
@@ -348,6 +348,10 @@ class EpisodeRunner:
             outcome = "error"
             notes.append(f"error: {exc}")
             self._leave_safe_after_error()
+        if self.p.asker is not None:
+            self._ask_summary = self.p.asker.end_episode(steps)
+            if self._ask_summary.unanswered:
+                notes.append("a request for help went unanswered: landed where it was")
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
     def _leave_safe_after_error(self) -> None:
@@ -359,11 +363,6 @@ class EpisodeRunner:
             self.leave_safe()
         except ColError as exc:  # no heartbeat yet: nothing is flying on our account
             log.error("could not leave the vehicle safe: %s", exc)
-        if self.p.asker is not None:
-            self._ask_summary = self.p.asker.end_episode(steps)
-            if self._ask_summary.unanswered:
-                notes.append("a request for help went unanswered: landed where it was")
-        return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
     # ----- asking for help -------------------------------------------------------------------
     def _begin_asking(self, episode: int) -> None:
@@ -504,6 +503,7 @@ class EpisodeRunner:
         policy_cmd, version, score = self._policy_command(vector)
         action = self._ask(phase, step, score, human)
         decision = self.arbiter.decide(phase, human, policy_cmd)
+        sp = HOLD  # what a watcher is shown while the vehicle holds or lands on a request
         if action in (AskAction.HOLD, AskAction.LAND):
             self._send_ask_action(action, snap)
             self.trace.append((step, score, action.value))
@@ -511,7 +511,8 @@ class EpisodeRunner:
             if self._hold_ned is not None:  # the hold ended: rate limits start from what is asked now
                 self._hold_ned = None
                 self.p.limiter.reset()
-            self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s))
+            sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
+            self._send(sp)
             self.trace.append((step, score, decision.source))
         self.step_latencies_s.append(time.perf_counter() - t_start)
         if decision.record and action is not AskAction.LAND and self.p.dataset is not None:
