@@ -263,6 +263,7 @@ def console(
     camera_rate: Annotated[float, typer.Option("--camera-rate", min=1.0, help="frames per second of our SITL's camera for the page")] = 35.0,
     start: Annotated[str | None, typer.Option("--start", help="start a run at once: CONDITION:EPISODES, e.g. col:8 (else press Start in the page)")] = None,
     learn: Annotated[bool, typer.Option(help="train the policy on the person's samples while flying")] = True,
+    pictures: PicturesOpt = True,
     verbose: VerboseOpt = False,
 ) -> None:
     """The pilot console in a browser: see the camera, fly with a gamepad, intervene, watch the policy learn.
@@ -285,7 +286,7 @@ def console(
                 raise typer.BadParameter(f"--start takes CONDITION:EPISODES with demo, int or col, got {start!r}")
             autostart = (cond, int(count))
         opts = ConsoleOptions(run_dir=run_dir or default_run_dir(cfg, "console"), connection=connect, simulator=simulator,
-                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn)
+                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures)
 
         def ready(url: str) -> None:
             typer.echo(f"CONSOLE {url}", err=False)

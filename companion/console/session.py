@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.app import CONDITIONS, RunOptions, Vehicle, run_episodes
+from companion.app import CONDITIONS, RunOptions, RunResult, Vehicle, run_episodes, write_pictures
 from companion.config import CompanionConfig
 from companion.console.frames import FramePump
 from companion.control.arbiter import Phase
@@ -27,6 +27,7 @@ from companion.errors import ColError, ConfigError
 from companion.inputs.browser import BrowserInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
+from companion.pictures.recorder import FlightRecorder
 from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,7 @@ class ConsoleOptions:
     camera_rate_hz: float = 35.0
     seed: int | None = None
     learn: bool = True
+    pictures: bool = True  # each run writes flight.png and its last episode's video
 
 
 @dataclass
@@ -104,6 +106,7 @@ class ConsoleSession:
         self._vehicle: Vehicle | None = None
         self._learner: Learner | None = None
         self._dataset: HumanDataset | None = None
+        self._recorder: FlightRecorder | None = None  # this run's flight.png and last episode's video
 
     # ----- the page's commands ---------------------------------------------------------------
     def start(self, condition: str, episodes: int) -> None:
@@ -159,6 +162,8 @@ class ConsoleSession:
 
     # ----- RunControl -------------------------------------------------------------------------
     def started(self, vehicle: Vehicle, learner: Learner, dataset: HumanDataset) -> None:
+        if self._recorder is not None:
+            self._recorder.started(vehicle, learner, dataset)
         with self._lock:
             self._vehicle, self._learner, self._dataset = vehicle, learner, dataset
             self._run.state = "stopping" if self._stop else "running"
@@ -180,12 +185,16 @@ class ConsoleSession:
             self._run.track_ne = []
             self._next = False
         self.human.reset()
+        if self._recorder is not None:
+            self._recorder.before_episode(episode, phase)
         return True
 
     def on_step(self, view: StepView) -> None:
         learner, dataset = self._learner, self._dataset
         message = step_message(view, learner.last_loss if learner is not None else None,
                                len(dataset) if dataset is not None else 0)
+        if self._recorder is not None:
+            self._recorder.on_step(view)
         with self._lock:
             self._run.track_ne.append([*message["position_ne_m"], message["who"]])
             self._run.last_step = message
@@ -205,8 +214,10 @@ class ConsoleSession:
                           config_path=self.opts.config_path, seed=self.opts.seed, lockstep=False,
                           learn=self.opts.learn, camera_rate_hz=self.opts.camera_rate_hz)
         state, error = "finished", None
+        self._recorder = FlightRecorder() if self.opts.pictures else None
         try:
-            run_episodes(self.cfg, opts, self._on_episode, human=self.human, control=self)
+            result = run_episodes(self.cfg, opts, self._on_episode, human=self.human, control=self)
+            self._write_pictures(result, condition)
         except ColError as exc:
             state, error = "failed", str(exc)
             log.error("the console's run failed: %s", exc)
@@ -222,6 +233,12 @@ class ConsoleSession:
                 self._vehicle = None
                 self._publish_status_locked()
         self._announce(f"run {state}" + (f": {error}" if error else ""))
+
+    def _write_pictures(self, result: RunResult, condition: str) -> None:
+        if self._recorder is None or not result.records:
+            return
+        for path in write_pictures(self._recorder, result, self.cfg, f"console {condition}"):
+            self._announce(f"wrote {path}")
 
     def _on_frame(self, frame: Frame, message: bytes) -> None:
         self.publish_frame(message)

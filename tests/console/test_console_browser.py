@@ -149,3 +149,4 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
         assert float(r["roll"]) == float(r["yaw"]) == float(r["throttle"]) == 0.0
     assert record["interventions"] == 1 and record["human_samples"] == len(rows)
     assert record["outcome"] in ("stopped", "touchdown", "timeout")
+    assert (run_dir / "flight.png").is_file() and (run_dir / "episode_000.mp4").is_file()
