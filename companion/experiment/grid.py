@@ -199,13 +199,25 @@ class ExperimentSetup:
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
+ADDED_LATER: dict[tuple[str, str], object] = {
+    ("learner", "ensemble_members"): 1,
+    ("link", "signing_key_file"): "",
+    ("session", "end_of_run"): "land",
+    ("session", "arm_timeout_s"): 60.0,
+}
+"""Companion settings added after results were committed, with the default that behaves as
+before them (one network; no signing; the run's own SITL is never left by end_of_run; our
+SITL arms at once)."""
+
+
 def _fingerprinted(companion: CompanionConfig) -> dict[str, object]:
     """The companion's settings, leaving out those added after results were committed while
-    they are at their defaults (the ensemble size, asking for help): those results keep their
+    they are at their defaults (ADDED_LATER, asking for help): those results keep their
     fingerprint, and a setting that does change them still changes it."""
     data = companion.model_dump(mode="json")
-    if data["learner"].get("ensemble_members") == 1:
-        del data["learner"]["ensemble_members"]
+    for (table, key), default in ADDED_LATER.items():
+        if data[table].get(key) == default:
+            del data[table][key]
     if data.get("ask") == AskConfig().model_dump(mode="json"):
         del data["ask"]
     return data

@@ -141,4 +141,4 @@ def test_offboard_loss_through_the_proxy_holds_lands_and_the_link_resumes(proxie
         stream.stop()
     assert wait_until(lambda: not sim.truth()["armed"], 20.0)
     link.arm()  # commands work again over the restored link: ACCEPTED, and the heartbeat says so
-    assert wait_until(lambda: (s := link.state()) is not None and s.armed, 5.0)
+    assert wait_until(lambda: (s := link.state()) is not None and s.armed, 15.0)
