@@ -182,10 +182,14 @@ def fly(model: Actor, env: LandingEnv, seed: int, index: int = 0) -> dict[str, A
             return _episode_record(index, info)
 
 
+def evaluate_runs(model: Actor, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> list[dict[str, Any]]:
+    """One record per held-out start ``seed0 + i``."""
+    return [fly(model, env, seed0 + i, i) for i in range(episodes)]
+
+
 def evaluate(model: Actor, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> dict[str, Any]:
     """Success rate on ``episodes`` held-out starts, reported as ``col eval`` reports it."""
-    runs = [fly(model, env, seed0 + i, i) for i in range(episodes)]
-    return summarise(runs)
+    return summarise(evaluate_runs(model, env, episodes, seed0))
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
