@@ -5,6 +5,12 @@ in-process step's time goes (a cProfile of the same stepping).
 Random actions in the 2-action task on the calibrated task (``configs/paper.toml``), episodes
 reset as they end, as PPO steps an env. Goal: 2,000 env steps/s in total on a 2-core machine.
 
+Each measurement gives wall-clock steps per second (what this machine, as loaded now, did) and
+CPU milliseconds per step (the processes' own CPU time: the SITL side included, since it runs
+in the same process; for the workers, their CPU time read from /proc), from which
+``*_steps_per_s_per_idle_core`` = 1000 / CPU ms per step: what one core to itself would give.
+On a shared machine the wall-clock figures fall with the load; the CPU figures do not.
+
     python bench/rl_env_speed.py [--quick] [--steps N]
 """
 
@@ -18,6 +24,7 @@ import pstats
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,47 +40,75 @@ PAPER = REPO / "configs" / "paper.toml"
 GOAL_STEPS_PER_S = 2000
 
 
-def _step_env(env: LandingEnv, steps: int, rng: np.random.Generator) -> float:
-    """Steps per second of one env over ``steps`` steps (resetting as episodes end)."""
+def _cpu_s(pids: list[int]) -> float:
+    """CPU seconds (user + system) used so far by these processes (Linux /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for pid in pids:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        total += (int(fields[11]) + int(fields[12])) / tick
+    return total
+
+
+def _rates(steps: int, wall_s: float, cpu_s: float) -> dict[str, float]:
+    return {"steps_per_s": round(steps / wall_s, 1), "cpu_ms_per_step": round(1000 * cpu_s / steps, 3),
+            "steps_per_s_per_idle_core": round(steps / cpu_s, 1)}
+
+
+def _step_env(env: LandingEnv, steps: int, rng: np.random.Generator) -> dict[str, float]:
+    """One env over ``steps`` steps (resetting as episodes end): wall and CPU rates."""
     env.reset(seed=0)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(steps):
         _, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
         if terminated or truncated:
             env.reset()
-    return steps / (time.perf_counter() - t0)
+    return _rates(steps, time.perf_counter() - t0, time.process_time() - c0)
 
 
-def single(inprocess: bool, steps: int) -> float:
+def single(inprocess: bool, steps: int) -> dict[str, float]:
+    """One env; over MAVLink the SITL process's CPU time counts too."""
     cfg = load_companion_config(PAPER)
     env = LandingEnv(2, cfg, config_path=PAPER, inprocess=inprocess)
     try:
-        return _step_env(env, steps, np.random.default_rng(0))
+        if inprocess:
+            return _step_env(env, steps, np.random.default_rng(0))
+        sitl_pids = [int(p) for p in Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children").read_text().split()]
+        before = _cpu_s(sitl_pids)
+        rates = _step_env(env, steps, np.random.default_rng(0))
+        sitl_ms = 1000 * (_cpu_s(sitl_pids) - before) / steps
+        cpu_ms = rates["cpu_ms_per_step"] + sitl_ms
+        return {**rates, "cpu_ms_per_step": round(cpu_ms, 3), "steps_per_s_per_idle_core": round(1000 / cpu_ms, 1)}
     finally:
         env.close()
 
 
-def vectorised(n_envs: int, steps: int) -> float:
-    """Total steps per second of ``n_envs`` in-process envs in worker processes."""
+def vectorised(n_envs: int, steps: int) -> dict[str, float]:
+    """``n_envs`` in-process envs in worker processes: total rates (workers' and our CPU time)."""
     venv = make_vec_env(2, load_companion_config(PAPER), n_envs, PAPER)
     rng = np.random.default_rng(0)
     try:
         venv.seed(0)
         venv.reset()
+        pids = [p.pid for p in venv.processes]  # type: ignore[attr-defined]
         rounds = max(1, steps // n_envs)
-        t0 = time.perf_counter()
+        t0, c0, w0 = time.perf_counter(), time.process_time(), _cpu_s(pids)
         for _ in range(rounds):
             venv.step(rng.uniform(-1, 1, (n_envs, 2)).astype(np.float32))  # auto-resets
-        return rounds * n_envs / (time.perf_counter() - t0)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0 + _cpu_s(pids) - w0
+        rates = _rates(rounds * n_envs, wall, cpu)
+        return {**rates, f"steps_per_s_on_{n_envs}_idle_cores": round(n_envs * 1000 / rates["cpu_ms_per_step"], 1)}
     finally:
         venv.close()
 
 
-def profile(steps: int) -> dict[str, float]:
-    """Milliseconds per in-process step in the main parts, from cProfile's cumulative times."""
+def profile(steps: int) -> dict[str, Any]:
+    """Where an in-process step's CPU time goes: cProfile (on CPU time, so other processes do not
+    count) cumulative milliseconds per env step of the main parts, and each part's share of the
+    whole step (the profiler's own overhead inflates the milliseconds, less the shares)."""
     cfg = load_companion_config(PAPER)
     env = LandingEnv(2, cfg, config_path=PAPER, inprocess=True)
-    prof = cProfile.Profile()
+    prof = cProfile.Profile(time.process_time)
     try:
         prof.enable()
         rate = _step_env(env, steps, np.random.default_rng(0))
@@ -81,7 +116,7 @@ def profile(steps: int) -> dict[str, float]:
     finally:
         env.close()
     stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
-    found = {}
+    found: dict[str, Any] = {}
     wanted = {"step (vehicle.py)": ("vehicle.py", "step"), "render (camera.py)": ("camera.py", "render"),
               "observe (observer.py)": ("observer.py", "observe"), "_run_frame (server.py)": ("server.py", "_run_frame"),
               "_end_frame (server.py)": ("server.py", "_end_frame"), "drain (inprocess.py)": ("inprocess.py", "drain"),
@@ -91,8 +126,9 @@ def profile(steps: int) -> dict[str, float]:
         for label, (fname, fn) in wanted.items():
             if file.endswith(fname) and name == fn:
                 found[label] = round(1000 * row[3] / steps, 3)  # cumulative seconds -> ms per env step
-    found["steps_per_s_under_profile"] = round(rate, 1)
-    return found
+    whole = found.get("step (gym_env.py)", 0.0)
+    shares = {k: round(v / whole, 3) for k, v in found.items()} if whole else {}
+    return {"cpu_ms_per_step": found, "share_of_step": shares, "rates_under_profile": rate}
 
 
 def main() -> None:
@@ -106,10 +142,10 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     result = {
         "bench": "rl_env_speed", "steps": steps,
-        "mavlink_env_steps_per_s": round(single(False, steps), 1),
-        "inprocess_env_steps_per_s": round(single(True, steps), 1),
-        "inprocess_2_workers_steps_per_s": round(vectorised(2, 2 * steps), 1),
-        "profile_ms_per_step": profile(max(300, steps // 3)),
+        "mavlink_env": single(False, steps),
+        "inprocess_env": single(True, steps),
+        "inprocess_2_workers": vectorised(2, 2 * steps),
+        "profile": profile(max(300, steps // 3)),
         "goal_steps_per_s": GOAL_STEPS_PER_S, "cores": os.cpu_count(),
         "load_avg_1min": [round(load0, 2), round(os.getloadavg()[0], 2)],
         "machine_ref_rt": round(ref, 1),

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 from tqdm import tqdm
 
-from companion.errors import ColError
+from companion.errors import ColError, ConfigError
 from companion.statistics import wilson_interval
 
 app = typer.Typer(add_completion=False, help=__doc__, no_args_is_help=True)
@@ -373,17 +373,23 @@ def ppo(
     envs: Annotated[int, typer.Option("--envs", min=1, help="envs stepped at once (more than 1: worker processes)")] = 1,
     mavlink: Annotated[bool, typer.Option("--mavlink", help="fly the SITL over MAVLink sockets instead of in-process (the same episodes, slower)")] = False,
     random: Annotated[bool, typer.Option("--random", help="no training: uniformly random actions on the training starts; writes random.json")] = False,
+    eval_checkpoint: Annotated[bool, typer.Option("--eval-checkpoint", help="no training: fly the latest checkpoint of the unfinished run in --out on the held-out starts; writes checkpoint_eval.json")] = False,
     config: ConfigOpt = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's PPO baseline: sparse success reward, trained in the lockstep SITL, then evaluated."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.rl.ppo import PpoSettings, random_policy, run_ppo, summarise
+    from companion.rl.ppo import PpoSettings, evaluate_checkpoint, random_policy, run_ppo, summarise
 
     try:
         cfg = _load(config)
         folder = out or default_run_dir(cfg, f"ppo{actions}")
+        if eval_checkpoint:
+            if out is None:
+                raise ConfigError("--eval-checkpoint needs --out: the run folder whose checkpoint to fly")
+            typer.echo(json.dumps(evaluate_checkpoint(folder, cfg, config, eval_episodes)))
+            return
         if random:
             bar = tqdm(total=episodes, desc=f"random {actions} actions", unit="ep", leave=False, disable=None)
             try:

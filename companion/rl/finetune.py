@@ -193,7 +193,7 @@ def make_finetune_model(env: LandingEnv | VecEnv, snapshot: PolicySnapshot, sett
 
 def dataset_beside(checkpoint: Path) -> Path:
     """A run folder's dataset for one of its checkpoints (``RUN/checkpoints/episode_NNN.npz``)."""
-    return checkpoint.resolve().parent.parent / "human.csv"
+    return checkpoint.parent.parent / "human.csv"
 
 
 # ====================================================================== the run
@@ -276,7 +276,7 @@ class SnapshotActor:
 
 def _check_same(out_dir: Path, settings: FinetuneSettings, checkpoint: Path, dataset: Path) -> None:
     path = out_dir / "settings.json"
-    now = {**asdict(settings), "checkpoint": str(checkpoint.resolve()), "dataset": str(dataset.resolve())}
+    now = {**asdict(settings), "checkpoint": str(checkpoint), "dataset": str(dataset)}
     if path.exists():
         if json.loads(path.read_text()) != now:
             raise ConfigError(f"{out_dir} holds a fine-tuning run with other settings; use another --out")

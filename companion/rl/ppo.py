@@ -182,10 +182,14 @@ def fly(model: Actor, env: LandingEnv, seed: int, index: int = 0) -> dict[str, A
             return _episode_record(index, info)
 
 
+def evaluate_runs(model: Actor, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> list[dict[str, Any]]:
+    """One record per held-out start ``seed0 + i``."""
+    return [fly(model, env, seed0 + i, i) for i in range(episodes)]
+
+
 def evaluate(model: Actor, env: LandingEnv, episodes: int, seed0: int = EVAL_SEED) -> dict[str, Any]:
     """Success rate on ``episodes`` held-out starts, reported as ``col eval`` reports it."""
-    runs = [fly(model, env, seed0 + i, i) for i in range(episodes)]
-    return summarise(runs)
+    return summarise(evaluate_runs(model, env, episodes, seed0))
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -246,6 +250,26 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
     results = _results(settings, episodes, report, train_s, eval_s, out_dir)
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     return results
+
+
+def evaluate_checkpoint(out_dir: Path, cfg: CompanionConfig | None = None, config_path: Path | None = None,
+                        episodes: int | None = None) -> dict[str, Any]:
+    """An unfinished run's latest checkpoint on the held-out starts, as the final model would be
+    flown; written to ``checkpoint_eval.json`` with the training episodes it had seen."""
+    state = out_dir / CHECKPOINT_STATE
+    if not state.exists():
+        raise ConfigError(f"{out_dir} has no PPO checkpoint to evaluate (no {CHECKPOINT_STATE})")
+    settings = PpoSettings(**json.loads((out_dir / "settings.json").read_text()))
+    cfg = cfg or CompanionConfig()
+    model = PPO.load(out_dir / CHECKPOINT, device="cpu")
+    env = LandingEnv(settings.action_dims, cfg, config_path=config_path, inprocess=settings.inprocess)
+    try:
+        report = evaluate(model, env, episodes or settings.eval_episodes, settings.eval_seed)
+    finally:
+        env.close()
+    result = {"train_episodes_seen": int(json.loads(state.read_text())["episodes"]), "eval": report}
+    (out_dir / "checkpoint_eval.json").write_text(json.dumps(result, indent=1) + "\n")
+    return result
 
 
 def _check_same_settings(out_dir: Path, settings: PpoSettings) -> None:

@@ -28,7 +28,9 @@ from companion.rl.finetune import (
     make_finetune_model,
     run_finetune,
 )
-from companion.rl.gym_env import observation_space
+from companion.rl.gym_env import LandingEnv, observation_space
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 class SpacesOnly(gym.Env[np.ndarray, np.ndarray]):
@@ -135,3 +137,32 @@ def test_a_tiny_finetuning_run_evaluates_before_and_after(tmp_path: Path, rng: n
     snap, _ = load_checkpoint(checkpoint)
     assert any(not np.array_equal(a, b) for a, b in zip(tuned.weights, snap.weights, strict=True))  # it learned
     assert run_finetune(checkpoint, settings, tmp_path / "out") == results  # a finished folder is kept
+
+
+@pytest.mark.e2e
+def test_before_and_after_are_what_col_eval_measures(tmp_path: Path) -> None:
+    """The env's evaluation of a CoL policy flies the same episodes as ``col eval`` over MAVLink
+    (the committed CoL@4 policy on the calibrated task: touchdowns, one of them a success)."""
+    from typer.testing import CliRunner
+
+    from companion import cli
+    from companion.config import load_companion_config
+    from companion.rl.ppo import evaluate_runs
+
+    checkpoint = REPO / "results" / "ppo" / "finetune" / "col4-P1" / "checkpoints" / "episode_003.npz"
+    paper = REPO / "configs" / "paper.toml"
+    result = CliRunner().invoke(cli.app, ["eval", str(checkpoint), "--episodes", "2", "--config", str(paper),
+                                          "--run-dir", str(tmp_path / "eval")])
+    assert result.exit_code == 0, result.output
+    over_mavlink = [json.loads(line) for line in (tmp_path / "eval" / "episodes.jsonl").read_text().splitlines()]
+    snap, _ = load_checkpoint(checkpoint)
+    env = LandingEnv(4, load_companion_config(paper), config_path=paper, inprocess=True)
+    try:
+        in_env = evaluate_runs(SnapshotActor(snap), env, 2)
+    finally:
+        env.close()
+    keys = ("seed", "steps", "outcome", "success")
+    assert [[r[k] for k in keys] for r in over_mavlink] == [[r[k] for k in keys] for r in in_env]
+    assert {r["outcome"] for r in in_env} == {"touchdown"} and any(r["success"] for r in in_env)
+    for a, b in zip(over_mavlink, in_env, strict=True):
+        assert abs(a["touchdown_distance_m"] - b["touchdown_distance_m"]) < 1e-3

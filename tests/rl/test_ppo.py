@@ -110,3 +110,21 @@ def test_initial_log_std_and_entropy_bonus_reach_the_model() -> None:
         np.testing.assert_allclose(model.policy.log_std.detach().numpy(), [-1.5, -1.5])
     finally:
         venv.close()
+
+
+@pytest.mark.e2e
+def test_an_unfinished_runs_checkpoint_is_evaluated_on_held_out_starts(tmp_path: Path) -> None:
+    from companion.rl.ppo import evaluate_checkpoint
+
+    with pytest.raises(ConfigError, match="no PPO checkpoint"):
+        evaluate_checkpoint(tmp_path)
+
+    def stop_after_one(record: dict) -> None:
+        if record["episode"] == 1:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        run_ppo(PpoSettings(**{**TINY, "episodes": 4}), tmp_path, on_episode=stop_after_one)
+    result = evaluate_checkpoint(tmp_path, episodes=1)
+    assert result["train_episodes_seen"] >= 1 and result["eval"]["episodes"] == 1
+    assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == result
