@@ -133,3 +133,32 @@ def test_lockstep_needs_the_dialects_frame_marker() -> None:
     check_lockstep(ARDUPILOT, False)
     with pytest.raises(ConfigError, match="lockstep needs a frame marker"):
         check_lockstep(ARDUPILOT, True)
+
+
+def test_ctrl_c_leaves_the_vehicle_safe_before_the_link_closes(tmp_path: Path) -> None:
+    """Ctrl-C after the first episode: the run unwinds through the end-of-run policy."""
+    import contextlib
+
+    from companion.app import Vehicle
+    from tests.control.test_sequences import DialectLink
+    from tests.control.test_session import FakeSimulator
+
+    link = DialectLink(PX4)
+    closed: list[str] = []
+
+    @contextlib.contextmanager
+    def opener(cfg, opts, lockstep, run_dir):  # type: ignore[no-untyped-def]
+        try:
+            yield Vehicle(link, FakeSimulator(link), None)  # type: ignore[arg-type]  # a vehicle not started here
+        finally:
+            closed.append(link.calls[-1])
+
+    def interrupt(record) -> None:  # type: ignore[no-untyped-def]
+        raise KeyboardInterrupt
+
+    cfg = CompanionConfig()
+    cfg = cfg.model_copy(update={"session": cfg.session.model_copy(update={"max_steps": 30, "end_of_run": "hold"})})
+    opts = RunOptions(pilot="none", condition="eval", episodes=3, run_dir=tmp_path / "run", lockstep=True, learn=False)
+    with pytest.raises(KeyboardInterrupt):
+        run_episodes(cfg, opts, on_episode=interrupt, vehicle=opener)
+    assert closed == ["mode AUTO.LOITER"]  # held (the configured policy), then the link closed

@@ -303,7 +303,7 @@ class EpisodeRunner:
             echo = self._frame_ms if self.p.lockstep else None
             north, east, down = (float(v) for v in target)
             self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
-            if i == 2 and not self.dialect.is_offboard(snap.mode):
+            if i % 10 == 2 and not self.dialect.is_offboard(snap.mode):  # again if a failsafe took it
                 self.p.link.set_mode(self.dialect.offboard_mode)
             err = float(np.linalg.norm(np.asarray(snap.position_ned_m) - target))
             speed = float(np.linalg.norm(snap.velocity_ned_m_s))
