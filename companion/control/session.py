@@ -22,7 +22,7 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import SessionConfig
 from companion.control.arbiter import Arbiter, Phase
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.errors import ColError, LinkError, LinkLost
+from companion.errors import ColError, CommandRejected, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
 from companion.learning.policy import PolicySnapshot
@@ -33,6 +33,7 @@ from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
 HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+OFFBOARD_ATTEMPTS = 3  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
 
 
 class PolicyRunner(Protocol):
@@ -174,12 +175,20 @@ class EpisodeRunner:
             return snap
         if not snap.armed:
             self.p.link.arm()
-        self._send(HOLD)
-        nxt = self._next_snapshot()
-        if nxt is None:
-            raise LinkError("lost the vehicle while entering OFFBOARD")
-        self.p.link.set_mode("OFFBOARD")  # raises CommandRejected with the reason if refused
-        return nxt
+        for attempt in range(OFFBOARD_ATTEMPTS):
+            self._send(HOLD)
+            nxt = self._next_snapshot()
+            if nxt is None:
+                raise LinkError("lost the vehicle while entering OFFBOARD")
+            try:
+                self.p.link.set_mode("OFFBOARD")  # raises CommandRejected with the reason if refused
+                return nxt
+            except CommandRejected:
+                # on a lossy link the one setpoint, or the request (then retried a second later,
+                # when the setpoint is stale), was lost: stream again and ask again, as PX4 wants
+                if attempt == OFFBOARD_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
 
     # ----- episode start -----------------------------------------------------------------------
     def _start(self, seed: int | None) -> tuple[VehicleSnapshot, list[str]]:
