@@ -25,7 +25,7 @@ from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
-from companion.errors import ColError, LinkError, LinkLost
+from companion.errors import ColError, CommandRejected, LinkError, LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
 from companion.learning.ensemble import EnsembleSnapshot, disagreement
@@ -39,6 +39,7 @@ from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
 HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+OFFBOARD_ATTEMPTS = 3  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
 
 
 class PolicyRunner(Protocol):
@@ -247,13 +248,26 @@ class EpisodeRunner:
                        self.p.cfg.arm_timeout_s)
         if not snap.armed:
             arm_when_ready(self.p.link, self.p.cfg.arm_timeout_s)
-        self._send(HOLD)
-        nxt = self._next_snapshot()
-        if nxt is None:
-            raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
-        if d.stream_before_offboard:
-            self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
-        return nxt
+        if not d.stream_before_offboard:
+            self._send(HOLD)
+            nxt = self._next_snapshot()
+            if nxt is None:
+                raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
+            return nxt
+        for attempt in range(OFFBOARD_ATTEMPTS):
+            self._send(HOLD)
+            nxt = self._next_snapshot()
+            if nxt is None:
+                raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
+            try:
+                self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
+                return nxt
+            except CommandRejected:
+                # on a lossy link the one setpoint, or the request (then retried a second later,
+                # when the setpoint is stale), was lost: stream again and ask again, as PX4 wants
+                if attempt == OFFBOARD_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
 
     # ----- episode start -----------------------------------------------------------------------
     def _start(self, seed: int | None) -> tuple[VehicleSnapshot, list[str]]:

@@ -302,3 +302,24 @@ def test_a_refused_offboard_after_link_recovery_ends_only_that_episode(monkeypat
     monkeypatch.setattr(runner, "_recover_link", recover)
     record = runner.run(0, Phase.AUTONOMOUS, seed=1)
     assert record.outcome == "error" and "DENIED" in record.notes[-1]
+
+
+def test_an_offboard_refused_because_its_setpoint_was_lost_is_asked_again_after_a_fresh_one() -> None:
+    from companion.errors import CommandRejected
+
+    link = KinematicLink((0.0, 0.0, -3.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=5)
+    refusals = [1]
+    real_set_mode = link.set_mode
+
+    def lossy(name: str) -> None:  # the first request finds no fresh setpoint, as on a lossy link
+        if refusals[0]:
+            refusals[0] -= 1
+            raise CommandRejected("set_mode('OFFBOARD')", "DENIED")
+        real_set_mode(name)
+
+    link.set_mode = lossy  # type: ignore[method-assign]
+    sent_before = len(link.sent)
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert record.outcome != "error" and link.modes[0] == "OFFBOARD"
+    assert len(link.sent) - sent_before >= 2 + record.steps  # a fresh setpoint before each request
