@@ -5,8 +5,7 @@ lockstep), no ground truth (success is unknown, touchdown distances are estimate
 
 Starts are 3 m above the pad (``SHORT``) so that three episodes take about a minute of real
 time; the SITL of each personality is started once per module and flown by every test in turn.
-The three expert episodes against PX4 are marked slow: the default suite flies PX4 through
-``--connect`` with the policy (and in lockstep in tests/test_fly_e2e.py), ArduPilot with both.
+Both personalities fly three expert episodes and a policy's evaluation.
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ start_xy_range_m = 1.0
 max_steps = 250
 """
 BOTH = ["px4", "ardupilot"]
-EXPERT = [pytest.param("px4", marks=pytest.mark.slow), "ardupilot"]
+EXPERT = ["px4", "ardupilot"]
 
 
 @pytest.fixture(scope="module")
