@@ -256,6 +256,8 @@ def console(
     simulator: SimulatorOpt = None,
     host: Annotated[str, typer.Option(help="address the page is served on (127.0.0.1: this machine only)")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port (0: any free port)")] = 8765,
+    allow_remote: Annotated[bool, typer.Option("--allow-remote", help="allow a --host other than loopback (needs --token-file)")] = False,
+    token_file: Annotated[Path | None, typer.Option("--token-file", help="file holding the token the page and its socket must carry (?token=...)")] = None,
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
@@ -273,9 +275,12 @@ def console(
     _setup(verbose)
     from companion.app import default_run_dir
     from companion.console.server import run_console
+    from companion.console.access import check_console_exposure
     from companion.console.session import ConsoleOptions, ConsoleSession
 
     try:
+        token = _read_secret(token_file, "token") if token_file is not None else None
+        check_console_exposure(host, allow_remote, token)  # before any SITL or socket
         cfg = _load(config)
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
@@ -289,14 +294,23 @@ def console(
                               config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures)
 
         def ready(url: str) -> None:
+            url = f"{url}?token={token}" if token else url
             typer.echo(f"CONSOLE {url}", err=False)
             typer.echo(f"open {url} in a browser; runs write to {opts.run_dir}; Ctrl-C stops", err=True)
 
-        run_console(lambda publish, frame: ConsoleSession(cfg, opts, publish, frame), host, port, ready, autostart)
+        run_console(lambda publish, frame: ConsoleSession(cfg, opts, publish, frame), host, port, ready, autostart,
+                    token)
     except ColError as exc:
         raise _fail(exc) from None
     except OSError as exc:
         raise _fail(ColError(f"cannot serve the console on {host}:{port}: {exc}; choose another --port")) from None
+
+
+def _read_secret(path: Path, what: str) -> str:
+    try:
+        return path.read_text().strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ColError(f"cannot read the {what} file {path}: {exc}") from None
 
 
 @app.command()

@@ -22,6 +22,7 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 
+from companion.console.access import origin_ok, token_ok
 from companion.console.session import ConsoleSession
 from companion.errors import ColError
 
@@ -67,13 +68,15 @@ class _Client:
 class ConsoleServer:
     """Owns the aiohttp application, the connected pages and the session's outlet to them."""
 
-    def __init__(self, make_session: Any) -> None:
-        """``make_session(publish, publish_frame)`` builds the :class:`ConsoleSession`."""
+    def __init__(self, make_session: Any, token: str | None = None) -> None:
+        """``make_session(publish, publish_frame)`` builds the :class:`ConsoleSession`;
+        ``token``: what every request must carry as ``?token=`` (console/access.py)."""
+        self.token = token
         self.loop: asyncio.AbstractEventLoop | None = None
         self.clients: list[_Client] = []
         self.pilot: _Client | None = None
         self.session: ConsoleSession = make_session(self.publish, self.publish_frame)
-        self.app = web.Application()
+        self.app = web.Application(middlewares=[self._guard])
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/static/{name}", self._static)
         self.app.router.add_get("/ws", self._ws)
@@ -123,6 +126,17 @@ class ConsoleServer:
             self._broadcast(json.dumps(status))
 
     # ----- HTTP -------------------------------------------------------------------------------------
+    @web.middleware
+    async def _guard(self, request: web.Request, handler: Any) -> web.StreamResponse:
+        """The token on the page and the socket (the static files hold no secret); on the
+        socket, the page's own origin only."""
+        if not request.path.startswith("/static/") and not token_ok(request.query.get("token"), self.token):
+            raise web.HTTPForbidden(text="this console needs its token: open it as /?token=...")
+        if request.path == "/ws" and not origin_ok(request.headers.get("Origin"), request.headers.get("Host")):
+            log.warning("refused a WebSocket from another site's page (Origin %s)", request.headers.get("Origin"))
+            raise web.HTTPForbidden(text="the console's socket accepts its own page only")
+        return await handler(request)
+
     async def _index(self, request: web.Request) -> web.Response:
         return web.Response(text=(STATIC / "index.html").read_text(), content_type="text/html")
 
@@ -208,9 +222,9 @@ async def _serve(server: ConsoleServer, host: str, port: int, on_ready: Any,
 
 
 def run_console(make_session: Any, host: str, port: int, on_ready: Any,
-                autostart: tuple[str, int] | None = None) -> None:
+                autostart: tuple[str, int] | None = None, token: str | None = None) -> None:
     """Serve the console until interrupted; ``on_ready(url)`` once it listens."""
-    server = ConsoleServer(make_session)
+    server = ConsoleServer(make_session, token)
     try:
         asyncio.run(_serve(server, host, port, on_ready, autostart))
     except KeyboardInterrupt:

@@ -16,7 +16,7 @@ const keys = new Set();
 
 // ----- socket ------------------------------------------------------------------------------
 function connect() {
-  ws = new WebSocket(`ws://${location.host}/ws`);
+  ws = new WebSocket(`ws://${location.host}/ws${location.search}`);  // ?token=... when the console asks for one
   ws.binaryType = "arraybuffer";
   ws.onopen = () => { C.connected = true; setLink(true); };
   ws.onclose = () => {

@@ -1,0 +1,83 @@
+"""Who may use the console: another site's page is refused at the socket, a token guards a
+console that other machines can reach, and wider binding must be asked for."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import aiohttp
+import pytest
+from aiohttp.test_utils import TestClient, TestServer
+
+from companion.config import CompanionConfig
+from companion.console.access import check_console_exposure, origin_ok, token_ok
+from companion.console.server import ConsoleServer
+from companion.console.session import ConsoleOptions, ConsoleSession
+from companion.errors import ConfigError
+
+TOKEN = "0123456789abcdef-token"
+
+
+def _server(tmp_path: Path, token: str | None = None) -> ConsoleServer:
+    cfg = CompanionConfig()
+    return ConsoleServer(lambda publish, frame: ConsoleSession(cfg, ConsoleOptions(run_dir=tmp_path / "run"),
+                                                               publish, frame), token)
+
+
+def test_origin_must_be_the_consoles_own() -> None:
+    assert origin_ok("http://127.0.0.1:8765", "127.0.0.1:8765")
+    assert origin_ok(None, "127.0.0.1:8765")  # not a browser: the binding and the token keep it out
+    assert not origin_ok("http://evil.example", "127.0.0.1:8765")
+    assert not origin_ok("http://127.0.0.1:9999", "127.0.0.1:8765")  # another local page
+    assert not origin_ok("null", "127.0.0.1:8765")  # a sandboxed frame or a file:// page
+    assert not origin_ok("http://127.0.0.1:8765", None)
+
+
+def test_token_is_compared_only_when_set() -> None:
+    assert token_ok(None, None) and token_ok("anything", None)
+    assert token_ok(TOKEN, TOKEN)
+    assert not token_ok(None, TOKEN) and not token_ok(TOKEN[:-1], TOKEN)
+
+
+def test_binding_beyond_loopback_must_be_asked_for_with_a_token() -> None:
+    check_console_exposure("127.0.0.1", False, None)
+    check_console_exposure("localhost", False, None)
+    with pytest.raises(ConfigError, match="--allow-remote"):
+        check_console_exposure("0.0.0.0", False, None)
+    with pytest.raises(ConfigError, match="token of at least"):
+        check_console_exposure("0.0.0.0", True, "short")
+    check_console_exposure("0.0.0.0", True, TOKEN)
+
+
+def test_another_sites_page_cannot_open_the_socket(tmp_path: Path) -> None:
+    async def scenario() -> None:
+        server = _server(tmp_path)
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            own = f"http://127.0.0.1:{ts.port}"
+            ws = await client.ws_connect("/ws", headers={"Origin": own})
+            assert (await asyncio.wait_for(ws.receive_json(), 5.0))["type"] == "hello"
+            await ws.close()
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await client.ws_connect("/ws", headers={"Origin": "http://evil.example"})
+            assert refused.value.status == 403
+            assert server.pilot is None and server.session.human.status().messages == 0
+
+    asyncio.run(scenario())
+
+
+def test_a_token_guards_the_page_and_the_socket_not_the_static_files(tmp_path: Path) -> None:
+    async def scenario() -> None:
+        server = _server(tmp_path, TOKEN)
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            assert (await client.get("/")).status == 403
+            assert (await client.get("/?token=wrong")).status == 403
+            assert (await client.get(f"/?token={TOKEN}")).status == 200
+            assert (await client.get("/static/console.js")).status == 200
+            with pytest.raises(aiohttp.WSServerHandshakeError):
+                await client.ws_connect("/ws")
+            ws = await client.ws_connect(f"/ws?token={TOKEN}")
+            assert (await asyncio.wait_for(ws.receive_json(), 5.0))["type"] == "hello"
+            await ws.close()
+
+    asyncio.run(scenario())
