@@ -363,7 +363,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             result.learner_error = None if runner.error is None else repr(runner.error)
         result.final_snapshot = learner.latest_snapshot
         result.dataset_size = len(dataset)
-        result.latencies_s = episode_runner.step_latencies_s
+        result.latencies_s = list(episode_runner.step_latencies_s)
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     if recorder is not None:
         write_pictures(recorder, result, cfg, opts.condition)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
@@ -39,6 +40,7 @@ from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
 HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
 OFFBOARD_ATTEMPTS = 3  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
 
 
@@ -174,7 +176,8 @@ class EpisodeRunner:
         self._ticker: Ticker | None = None
         self._warned_learner = False
         self._tick_start_s: float | None = None
-        self.step_latencies_s: list[float] = []
+        self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
+        """The latest steps' own compute times (bounded: a long run must not grow without end)."""
         self._dialect = parts.dialect
         self._hold_ned: tuple[float, float, float, float] | None = None
         self._landing = False
