@@ -274,8 +274,8 @@ def console(
     the vehicle of --connect. The page's gamepad (Xbox layout) or keyboard is the person's input."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.console.server import run_console
     from companion.console.access import check_console_exposure
+    from companion.console.server import run_console
     from companion.console.session import ConsoleOptions, ConsoleSession
 
     try:
