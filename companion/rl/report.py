@@ -140,7 +140,7 @@ def plot(result: dict[str, Any], path: Path) -> None:
             x = np.array([b["first_episode"] + BLOCK for b in band])
             ax.plot(x, [100 * b["mean"] for b in band], color="tab:purple", linestyle="--", label=label)
             ax.fill_between(x, [100 * b["min"] for b in band], [100 * b["max"] for b in band], color="tab:purple", alpha=0.15)
-    for name, rnd in result.get("random_policy", {}).items():
+    for rnd in result.get("random_policy", {}).values():
         ax.axhline(100 * rnd["success_rate"], color="grey", linestyle=":", linewidth=1,
                    label=f"uniformly random actions, {rnd['action_dims']} actions ({rnd['episodes']} episodes)")
     col = result.get("col")
