@@ -88,9 +88,21 @@ def random_results(folder: Path) -> dict[str, Any]:
     return {p.parent.name: json.loads(p.read_text())["summary"] for p in sorted(folder.glob("*/random.json"))}
 
 
-def summary(grid: Path, random_dir: Path | None, col_file: Path | None) -> dict[str, Any]:
+def read_folders(folders: list[Path]) -> dict[int, list[dict[str, Any]]]:
+    """Training episodes of named run folders, numbered 0, 1, ... (for an extra curve)."""
+    return {k: [json.loads(line) for line in (f / "train_episodes.jsonl").read_text().splitlines() if line.strip()]
+            for k, f in enumerate(folders)}
+
+
+def summary(grid: Path, random_dir: Path | None, col_file: Path | None,
+            extra: dict[str, list[Path]] | None = None) -> dict[str, Any]:
     runs = read_runs(grid)
     return {
+        "extra_curves": {label: {"runs": [str(f) for f in folders], "curve": curve_band(read_folders(folders)),
+                                 "training_episodes": [len(e) for e in read_folders(folders).values()],
+                                 "training_successes": [sum(bool(r["success"]) for r in e)
+                                                        for e in read_folders(folders).values()]}
+                         for label, folders in (extra or {}).items()},
         "block_episodes": BLOCK,
         "training_episodes": {f"a{a}": {str(s): len(e) for s, e in seeds.items()} for a, seeds in sorted(runs.items())},
         "training_successes": {f"a{a}": {str(s): sum(bool(r["success"]) for r in e) for s, e in seeds.items()}
@@ -117,11 +129,20 @@ def plot(result: dict[str, Any], path: Path) -> None:
         if band:
             x = np.array([b["first_episode"] + BLOCK for b in band])
             seeds = max(b["seeds"] for b in band)
-            ax.plot(x, [100 * b["mean"] for b in band], color=colour, label=f"PPO {actions} actions (ours, {seeds} seed{'s' * (seeds > 1)})")
+            ax.plot(x, [100 * b["mean"] for b in band], color=colour, label=f"PPO {actions} actions, defaults (ours, {seeds} seed{'s' * (seeds > 1)})")
             ax.fill_between(x, [100 * b["min"] for b in band], [100 * b["max"] for b in band], color=colour, alpha=0.2)
         episode, rate = PAPER_ENDPOINTS[actions]
         ax.scatter([episode], [100 * rate], marker="*", s=160, color=colour, edgecolor="black",
                    label=f"paper: PPO {actions} actions", zorder=5)
+    for label, extra in result.get("extra_curves", {}).items():
+        band = extra["curve"]
+        if band:
+            x = np.array([b["first_episode"] + BLOCK for b in band])
+            ax.plot(x, [100 * b["mean"] for b in band], color="tab:purple", linestyle="--", label=label)
+            ax.fill_between(x, [100 * b["min"] for b in band], [100 * b["max"] for b in band], color="tab:purple", alpha=0.15)
+    for rnd in result.get("random_policy", {}).values():
+        ax.axhline(100 * rnd["success_rate"], color="grey", linestyle=":", linewidth=1,
+                   label=f"uniformly random actions, {rnd['action_dims']} actions ({rnd['episodes']} episodes)")
     col = result.get("col")
     if col and col["success_rate_mean"] is not None:
         ax.scatter([20], [100 * col["success_rate_mean"]], marker="D", s=60, color="tab:red",
@@ -142,9 +163,15 @@ def main() -> None:
     parser.add_argument("grid", type=Path, help="folder of a<actions>-s<seed> PPO runs")
     parser.add_argument("--random", type=Path, help="folder of random-policy runs (*/random.json)")
     parser.add_argument("--col", type=Path, help="results.jsonl of col experiment")
+    parser.add_argument("--curve", action="append", default=[], metavar="LABEL=DIR,DIR,...",
+                        help="an extra curve from these run folders (e.g. a sensitivity setting over seeds)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    result = summary(args.grid, args.random, args.col)
+    extra = {}
+    for spec in args.curve:
+        label, _, dirs = spec.partition("=")
+        extra[label] = [Path(d) for d in dirs.split(",") if d]
+    result = summary(args.grid, args.random, args.col, extra)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "summary.json").write_text(json.dumps(result, indent=1) + "\n")
     plot(result, args.out / "learning_curves.png")

@@ -1,5 +1,6 @@
 #!/bin/sh
-# Short sensitivity runs (ours, not the paper's): 2 actions, seed 0, 200 training episodes, each
+# Short sensitivity runs (ours, not the paper's): 2 actions, seed 0 (the last option wins:
+# --seed 1 overrides it), 200 training episodes, each
 # changing one of stable-baselines3's defaults, to test why the default PPO drifts away from the
 # pad without ever meeting a success; compare with grid/a2-s0's first 200 episodes.
 #   sh results/ppo/run_sensitivity.sh     (from the repository root; resumable)
@@ -15,5 +16,7 @@ mkdir -p "$OUT"
 case "${1:-all}" in
     noadvnorm) run no-adv-norm --no-normalize-advantage ;;
     logstd) run log-std-m1 --log-std-init -1 ;;
+    logstd-seeds)  # two more seeds of the setting that stopped the drift
+        run log-std-m1-s1 --log-std-init -1 --seed 1 & run log-std-m1-s2 --log-std-init -1 --seed 2 & wait ;;
     *) run no-adv-norm --no-normalize-advantage & run log-std-m1 --log-std-init -1 & wait ;;
 esac
