@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from companion.experiment.grid import Trial
+from companion.experiment.results import TrialResult
 from companion.rl.report import col_result, curve_band, plot, read_runs, summary
 
 
@@ -33,9 +35,11 @@ def test_summary_and_plot_with_final_evaluations_and_col(tmp_path: Path) -> None
                       "timeouts": 5, "fence": 5}, "train": {"successes": 3, "wall_s": 10.0}}
     write_run(tmp_path / "grid" / "a3-s0", [False] * 100, final)
     col = tmp_path / "results.jsonl"
-    rows = [{"trial": {"condition": c, "interactions": n}, "status": "ok", "eval_runs": 100, "eval_successes": k}
-            for c, n, k in [("col", 20, 90), ("col", 20, 80), ("demo", 20, 10), ("col", 8, 0)]]
-    col.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    rows = [TrialResult(Trial("P1", c, n, seed), "f", "ok", eval_runs=100, eval_successes=k).to_json_line()
+            for c, n, seed, k in [("col", 20, 0, 90), ("col", 20, 1, 80), ("demo", 20, 0, 10), ("col", 8, 0, 0),
+                                  ("col", 20, 0, 90)]]  # a trial written twice counts once
+    rows.append(TrialResult(Trial("P1", "col", 20, 2), "f", "error", error="boom").to_json_line())
+    col.write_text("\n".join(rows) + "\n")
     assert col_result(col) == {"interactions": 20, "trials": 2, "success_rate_mean": 0.85, "success_rate_sd": 0.0707}
     result = summary(tmp_path / "grid", None, col)
     assert result["final_policies"]["a3-s0"]["successes"] == 7 and result["training_successes"] == {"a3": {"0": 0}}
