@@ -10,26 +10,12 @@ network is protected by signing (``--signing-key``), not by this module.
 from __future__ import annotations
 
 import hmac
-import ipaddress
 import json
-import socket
 
 from colcommon.errors import ConfigError
+from colcommon.network import is_loopback
 
 MIN_TOKEN_CHARS = 16
-
-
-def is_loopback(host: str) -> bool:
-    """True for 127.0.0.0/8, ::1 and names that resolve only there (``localhost``)."""
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        pass
-    try:
-        infos = socket.getaddrinfo(host, None)
-    except OSError:
-        return False
-    return bool(infos) and all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
 
 
 def check_exposure(host: str, allow_remote: bool, control_token: str | None) -> None:

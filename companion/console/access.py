@@ -14,26 +14,12 @@ The console flies a vehicle, so two doors are shut:
 from __future__ import annotations
 
 import hmac
-import ipaddress
-import socket
 from urllib.parse import urlsplit
 
+from colcommon.network import is_loopback
 from companion.errors import ConfigError
 
 MIN_TOKEN_CHARS = 16
-
-
-def is_loopback(host: str) -> bool:
-    """True for 127.0.0.0/8, ::1 and names that resolve only there (``localhost``)."""
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        pass
-    try:
-        infos = socket.getaddrinfo(host, None)
-    except OSError:
-        return False
-    return bool(infos) and all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
 
 
 def check_console_exposure(host: str, allow_remote: bool, token: str | None) -> None:

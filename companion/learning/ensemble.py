@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from companion.learning.snapshot import Normalisation, PolicySnapshot, _frozen_f32
+from companion.learning.trainer import forward_into
 
 F32 = np.float32
 DEFAULT_MEMBERS = 5
@@ -195,14 +196,8 @@ class EnsembleTrainer:
             raise ValueError(f"need obs {self._raw.shape} and targets {self._y.shape}, got "
                              f"{obs_batch.shape} and {target_batch.shape}")
         xa, xv, A, dz, mask, zero = self._xa, self._xv, self._A, self._dz, self._mask, F32(0)
-        np.subtract(obs_batch, self.mean, out=self._raw)
-        np.divide(self._raw, self.std, out=xv[0])
+        y = forward_into(obs_batch, self.mean, self.std, self._raw, xa, xv, A, self._y)
         last = len(A) - 1
-        for k in range(last):
-            np.matmul(xa[k], A[k], out=xv[k + 1])
-            np.maximum(xv[k + 1], zero, out=xv[k + 1])
-        y = np.matmul(xa[last], A[last], out=self._y)
-        np.tanh(y, out=y)
         diff = np.subtract(y, target_batch, out=self._diff)
         losses = np.einsum("knj,knj->k", diff, diff) / F32(diff[0].size)
         if not np.all(np.isfinite(losses)):

@@ -38,6 +38,24 @@ from companion.learning.snapshot import Normalisation, PolicySnapshot
 F32 = np.float32
 
 
+def forward_into(obs: np.ndarray, mean: np.ndarray, std: np.ndarray, raw: np.ndarray,
+                 xa: Sequence[np.ndarray], xv: Sequence[np.ndarray], A: Sequence[np.ndarray],
+                 y_out: np.ndarray) -> np.ndarray:
+    """The forward pass into preallocated buffers (one network, or K stacked along a first
+    axis): normalise, then ReLU layers, then tanh. ``xa[k]`` are the layer inputs with their
+    bias column, ``xv[k]`` views of them without it; returns ``y_out``."""
+    np.subtract(obs, mean, out=raw)
+    np.divide(raw, std, out=xv[0])
+    last = len(A) - 1
+    zero = F32(0)
+    for k in range(last):
+        np.matmul(xa[k], A[k], out=xv[k + 1])
+        np.maximum(xv[k + 1], zero, out=xv[k + 1])
+    np.matmul(xa[last], A[last], out=y_out)
+    np.tanh(y_out, out=y_out)
+    return y_out
+
+
 class MlpTrainer:
     """MLP weights + RMSprop state as float32 NumPy buffers; ``step()`` is one update."""
 
@@ -91,14 +109,8 @@ class MlpTrainer:
             raise ValueError(f"need obs {self._raw.shape} and targets {self._y.shape}, got "
                              f"{obs_batch.shape} and {target_batch.shape}")
         xa, xv, A, dz, mask, zero = self._xa, self._xv, self._A, self._dz, self._mask, F32(0)
-        np.subtract(obs_batch, self.mean, out=self._raw)
-        np.divide(self._raw, self.std, out=xv[0])
+        y = forward_into(obs_batch, self.mean, self.std, self._raw, xa, xv, A, self._y)
         last = len(A) - 1
-        for k in range(last):
-            np.matmul(xa[k], A[k], out=xv[k + 1])
-            np.maximum(xv[k + 1], zero, out=xv[k + 1])
-        y = np.matmul(xa[last], A[last], out=self._y)
-        np.tanh(y, out=y)
         diff = np.subtract(y, target_batch, out=self._diff)
         loss = float(np.dot(self._flat_diff, self._flat_diff) / F32(diff.size))
         if not math.isfinite(loss):
