@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from companion.learning.snapshot import Normalisation, PolicySnapshot, _frozen_f32
-from companion.learning.trainer import forward_into
+from companion.learning.trainer import RmsPropState, forward_into
 
 F32 = np.float32
 DEFAULT_MEMBERS = 5
@@ -134,7 +134,7 @@ def disagreement(snapshot: PolicySnapshot, obs_vector: np.ndarray) -> tuple[np.n
     return snapshot.act(obs_vector), math.nan
 
 
-class EnsembleTrainer:
+class EnsembleTrainer(RmsPropState):
     """K MLPs + their RMSprop states as stacked float32 buffers; ``step()`` updates all K.
 
     The arithmetic of :class:`~companion.learning.trainer.MlpTrainer` member by member (a test
@@ -243,12 +243,3 @@ class EnsembleTrainer:
         ws, bs = self.weights()
         return EnsembleSnapshot.stack(ws, bs, Normalisation(self.mean, self.std), version, dataset_size_trained)
 
-    def state(self) -> dict[str, Any]:
-        return {"square_avg": self._sq.copy(), "updates": self.updates}
-
-    def load_state(self, state: dict[str, Any]) -> None:
-        sq = np.asarray(state["square_avg"], F32)
-        if sq.shape != self._sq.shape:
-            raise ValueError(f"optimiser state of {sq.shape[0]} values, this trainer has {self._sq.shape[0]}")
-        self._sq[:] = sq
-        self.updates = int(state["updates"])

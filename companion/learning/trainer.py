@@ -56,7 +56,26 @@ def forward_into(obs: np.ndarray, mean: np.ndarray, std: np.ndarray, raw: np.nda
     return y_out
 
 
-class MlpTrainer:
+class RmsPropState:
+    """RMSprop's state of a trainer (square averages ``_sq``, step count ``updates``): what
+    another process needs to go on. Shared by the single network and the ensemble."""
+
+    _sq: np.ndarray
+    updates: int
+
+    def state(self) -> dict[str, Any]:
+        return {"square_avg": self._sq.copy(), "updates": self.updates}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        """Take over :meth:`state` of a trainer of the same shape."""
+        sq = np.asarray(state["square_avg"], F32)
+        if sq.shape != self._sq.shape:
+            raise ValueError(f"optimiser state of {sq.shape[0]} values, this trainer has {self._sq.shape[0]}")
+        self._sq[:] = sq
+        self.updates = int(state["updates"])
+
+
+class MlpTrainer(RmsPropState):
     """MLP weights + RMSprop state as float32 NumPy buffers; ``step()`` is one update."""
 
     def __init__(self, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
@@ -171,17 +190,6 @@ class MlpTrainer:
         ws, bs = self.weights()
         return PolicySnapshot(ws, bs, Normalisation(self.mean, self.std), version, dataset_size_trained)
 
-    def state(self) -> dict[str, Any]:
-        """RMSprop's state (square averages, step count): what another process needs to go on."""
-        return {"square_avg": self._sq.copy(), "updates": self.updates}
-
-    def load_state(self, state: dict[str, Any]) -> None:
-        """Take over :meth:`state` of a trainer of the same shape."""
-        sq = np.asarray(state["square_avg"], F32)
-        if sq.shape != self._sq.shape:
-            raise ValueError(f"optimiser state of {sq.shape[0]} values, this trainer has {self._sq.shape[0]}")
-        self._sq[:] = sq
-        self.updates = int(state["updates"])
 
 
 def one_blas_thread() -> Any:
