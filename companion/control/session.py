@@ -41,7 +41,8 @@ from companion.vision.observer import Observer
 log = logging.getLogger(__name__)
 HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
-OFFBOARD_ATTEMPTS = 3  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
+OFFBOARD_ATTEMPTS = 3
+RETRY_STREAM_FRAMES = 5  # after a refusal: half a second of setpoints, so a lossy link delivers some  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
 
 
 class PolicyRunner(Protocol):
@@ -258,10 +259,7 @@ class EpisodeRunner:
                 raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
             return nxt
         for attempt in range(OFFBOARD_ATTEMPTS):
-            self._send(HOLD)
-            nxt = self._next_snapshot()
-            if nxt is None:
-                raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
+            nxt = self._stream_hold(1 if attempt == 0 else RETRY_STREAM_FRAMES, d.offboard_mode)
             try:
                 self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
                 return nxt
@@ -271,6 +269,17 @@ class EpisodeRunner:
                 if attempt == OFFBOARD_ATTEMPTS - 1:
                     raise
         raise AssertionError("unreachable")
+
+    def _stream_hold(self, frames: int, mode: str) -> VehicleSnapshot:
+        """Zero-velocity setpoints for ``frames`` frames (a retry streams longer); the last snapshot."""
+        nxt: VehicleSnapshot | None = None
+        for _ in range(frames):
+            self._send(HOLD)
+            nxt = self._next_snapshot()
+            if nxt is None:
+                raise LinkError(f"lost the vehicle while entering {mode}")
+        assert nxt is not None
+        return nxt
 
     # ----- episode start -----------------------------------------------------------------------
     def _start(self, seed: int | None) -> tuple[VehicleSnapshot, list[str]]:
