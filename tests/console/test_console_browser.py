@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from companion.simulator import SimulatorClient
+from tests.console import stop
 
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = os.environ.get("COL_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
@@ -58,12 +59,7 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
         assert line.startswith("CONSOLE http://127.0.0.1:"), f"no URL from col console: {line!r} " + (tmp_path / "console.log").read_text()
         yield line.split()[1], run_dir
     finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop(proc)
 
 
 def _wait(page, expression: str, timeout_s: float) -> object:  # type: ignore[no-untyped-def]

@@ -18,6 +18,7 @@ import aiohttp
 import pytest
 
 from companion.simulator import SimulatorClient
+from tests.console import stop
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
@@ -127,9 +128,4 @@ def test_a_dropped_page_holding_the_override_holds_the_vehicle(tmp_path: Path) -
         assert line.startswith("CONSOLE "), (tmp_path / "console.log").read_text()
         asyncio.run(_scenario(line.split()[1], run_dir))
     finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop(proc)
