@@ -233,7 +233,9 @@ class SimVehicle:
         if not self.armed or self._landed_since_s is None:
             return
         landed_for = t_s - self._landed_since_s
-        if self.mode is Mode.AUTO_LAND and landed_for > 0.5:
+        # as PX4, the landed disarms need a flight since arming (a touchdown); armed on the ground,
+        # only the preflight timeout disarms, whatever the mode
+        if self.mode is Mode.AUTO_LAND and self.touchdown is not None and landed_for > 0.5:
             self._disarm("Landed, disarming")
         elif self.touchdown is not None and landed_for > self.params.get("COM_DISARM_LAND") > 0:
             self._disarm("Landed, disarming")

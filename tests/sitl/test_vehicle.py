@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as M
 from sitl.config import SitlConfig
 from sitl.modes import Mode
 from sitl.offboard import FRAME_BODY_NED, TargetFields
-from sitl.vehicle import SimVehicle
+from sitl.vehicle import PREFLIGHT_DISARM_S, SimVehicle
 
 
 def run_s(v: SimVehicle, seconds: float, each_step=None) -> None:
@@ -46,6 +46,22 @@ def test_arm_takeoff_hold_land_disarm(vehicle: SimVehicle) -> None:
     assert vehicle.land()[0] == M.MAV_RESULT_ACCEPTED
     run_s(vehicle, 8.0)
     assert vehicle.landed and not vehicle.armed
+
+
+def test_arming_again_after_a_landing_waits_for_the_preflight_timeout(vehicle: SimVehicle) -> None:
+    """As PX4: the landed disarm needs a flight since arming; a vehicle armed on the ground (still in
+    AUTO.LAND from the last landing) stays armed until COM_DISARM_PRFLT, not one step."""
+    vehicle.arm()
+    vehicle.takeoff(math.nan)
+    run_s(vehicle, 8.0)
+    vehicle.land()
+    run_s(vehicle, 8.0)
+    assert vehicle.mode is Mode.AUTO_LAND and not vehicle.armed
+    assert vehicle.arm()[0] == M.MAV_RESULT_ACCEPTED
+    run_s(vehicle, PREFLIGHT_DISARM_S - 1.0)
+    assert vehicle.armed
+    run_s(vehicle, 2.0)
+    assert not vehicle.armed
 
 
 def test_takeoff_needs_arming(vehicle: SimVehicle) -> None:
