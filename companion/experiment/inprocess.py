@@ -8,8 +8,10 @@ the SITL's :class:`~sitl.server.SitlServer` frame loop, ``MessageHandler`` and c
 the companion's :class:`~companion.link.mavlink_link.MavlinkLink` (commands, ACK waits,
 telemetry folding), observer, detector and episode loop. Only the transport is replaced:
 
-- MAVLink travels as the same packed bytes, parsed by the same pymavlink parsers, so every
-  float is rounded to float32 exactly as on the wire;
+- MAVLink messages are handed over as the receiving parser would make them
+  (:func:`~companion.link.wire_copy.wire_copy`: the same payload packing and unpacking, so every
+  float is rounded to float32 exactly as on the wire, but no framing, checksums or byte-wise
+  parsing); with MAVLink signing on, the signed bytes themselves travel and are parsed;
 - camera frames are handed over as the rendered image (a raw frame on the stream is lossless,
   so these are the pixels the stream would carry; a JPEG stream's frames are encoded and
   decoded as on the stream);
@@ -43,10 +45,12 @@ from companion.link.base import VehicleSnapshot
 from companion.link.connection import parse_connection
 from companion.link.mavlink_io import MavlinkIO, SnapshotTest
 from companion.link.mavlink_link import MavlinkLink
+from companion.link.wire_copy import wire_copy
 from companion.simulator import SimulatorClient
 from sitl.config import SitlConfig, load_sitl_config
 from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.server import MavClient, SitlServer
+from sitl.vehicle import Outgoing
 
 INPROCESS_CONNECTION = "udpin:127.0.0.1:1"
 """What the link's config names as its connection (messages only; no port is opened)."""
@@ -54,26 +58,34 @@ CAMERA_URI = "inprocess://camera"
 
 
 # ====================================================================== the SITL's side
+class _Handoff(bytes):
+    """A message handed over without the wire: to the server's sending code, which passes it on
+    unread, empty bytes; to the in-process peer, ``message`` as the companion's parser makes it."""
+
+    message: Any
+
+
 class _CompanionPeer(MavClient):
-    """The SITL's view of the companion: what the SITL sends it is queued as bytes."""
+    """The SITL's view of the companion: what the SITL sends it is queued, bytes or messages
+    (:class:`_Handoff`), in order."""
 
     name = "inprocess"
 
     def __init__(self) -> None:
         super().__init__()
         self.active = True  # talks from the start: no greeting HEARTBEATs for a silent peer
-        self._outbox = bytearray()
+        self._outbox: list[Any] = []
 
     def send(self, data: bytes) -> None:
-        self._outbox += data
+        self._outbox.append(data.message if isinstance(data, _Handoff) else bytes(data))
 
-    def take(self) -> bytes:
-        """Everything sent since the last call, in order."""
-        data, self._outbox = bytes(self._outbox), bytearray()
-        return data
+    def take(self) -> list[Any]:
+        """Everything sent since the last call, in order: bytes, or messages as parsed."""
+        items, self._outbox = self._outbox, []
+        return items
 
     def close(self) -> None:
-        self._outbox = bytearray()
+        self._outbox = []
 
 
 class _FrameSlot:
@@ -132,6 +144,22 @@ class InProcessSitl(SitlServer):
     def receive(self, data: bytes) -> None:
         """MAVLink bytes from the companion, handled between frames as the socket SITL does."""
         self._on_mavlink(self.peer, self.peer.parse(data))
+
+    def receive_message(self, msg: Any) -> None:
+        """One message from the companion, as this SITL's parser would have made it."""
+        self._on_mavlink(self.peer, [msg])
+
+    @property
+    def needs_wire(self) -> bool:
+        """Whether messages must travel as bytes: signatures cover the framed bytes."""
+        return self.signing.required or any(m.signing.sign_outgoing for m in self._mav_out.values())
+
+    def _pack(self, out: Outgoing) -> bytes:
+        if self.needs_wire:
+            return super()._pack(out)
+        handoff = _Handoff()
+        handoff.message = wire_copy(out.message, self._mav_out[out.component])
+        return handoff
 
     def request(self, request: dict[str, Any]) -> dict[str, Any]:
         """One control-surface request, as the JSON line a socket client sends; the reply as
@@ -197,15 +225,22 @@ class InProcessIO(MavlinkIO):
             self._conn = _LoopConnection(self._sitl, self.cfg)
 
     def send(self, msg: Any) -> None:
-        super().send(msg)
+        conn = self._conn
+        if conn is None or self._tlog is not None or conn.mav.signing.sign_outgoing or self._sitl.needs_wire:
+            super().send(msg)  # the bytes themselves: signed, or logged
+        else:
+            with self._send_lock:
+                self._sitl.receive_message(wire_copy(msg, conn.mav))
         self.drain()  # the SITL answered at once (COMMAND_ACK, PARAM_VALUE): fold it now
 
     def drain(self) -> None:
         """Handle what the SITL has sent, in order, as the I/O thread would."""
-        data = self._sitl.peer.take()
-        if data:
-            for msg in self._parser.parse_buffer(data) or []:
-                self._handle(msg)
+        for item in self._sitl.peer.take():
+            if isinstance(item, bytes):
+                for msg in self._parser.parse_buffer(item) or []:
+                    self._handle(msg)
+            else:
+                self._handle(item)
 
     def wait(self, ready: SnapshotTest, timeout_s: float,
              on_loss: Callable[[], None] | None = None) -> VehicleSnapshot | None:

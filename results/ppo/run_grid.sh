@@ -3,13 +3,13 @@
 # 2, 3, 4 actions x seeds 0, 1, 2 x 1000 training episodes, each final policy on the 100 held-out
 # starts. Three lanes (one per seed, 2 actions first) run side by side at nice 10; every run folder
 # is resumable, and a finished one (results.json) is skipped, so running this again continues
-# where it stopped.
+# where it stopped (logs are appended).
 #   sh results/ppo/run_grid.sh            (from the repository root)
 set -u
 OUT=${OUT:-results/ppo/grid}
 run() {  # actions seed
     nice -n 10 col ppo --actions "$1" --seed "$2" --episodes 1000 --eval-episodes 100 \
-        --config configs/paper.toml --out "$OUT/a$1-s$2" > "$OUT/a$1-s$2.log" 2>&1
+        --config configs/paper.toml --out "$OUT/a$1-s$2" >> "$OUT/a$1-s$2.log" 2>&1
 }
 mkdir -p "$OUT"
 (run 2 0; run 3 0; run 4 0) &
