@@ -1,6 +1,7 @@
 """How many landing-env steps per second: the MAVLink env, the in-process env, and the
-in-process env in 2 worker processes (stable-baselines3 ``SubprocVecEnv``); and where one
-in-process step's time goes (a cProfile of the same stepping).
+in-process env in 2 worker processes (stable-baselines3 ``SubprocVecEnv``); where one in-process step's time
+goes (a cProfile of the same stepping); and the floor: the CPU time of the work every step of
+this task needs whatever the env (vehicle, camera image, pad detection), the rest being glue.
 
 Random actions in the 2-action task on the calibrated task (``configs/paper.toml``), episodes
 reset as they end, as PPO steps an env. Goal: 2,000 env steps/s in total on a 2-core machine.
@@ -131,6 +132,61 @@ def profile(steps: int) -> dict[str, Any]:
     return {"cpu_ms_per_step": found, "share_of_step": shares, "rates_under_profile": rate}
 
 
+class _CpuTimer:
+    """Wraps functions so that each call's CPU time is added to its label (restored on exit)."""
+
+    def __init__(self, targets: dict[str, tuple[Any, str]]) -> None:
+        self.targets = targets
+        self.cpu_s: dict[str, float] = dict.fromkeys(targets, 0.0)
+        self._saved: list[tuple[Any, str, Any]] = []
+
+    def __enter__(self) -> _CpuTimer:
+        for label, (owner, name) in self.targets.items():
+            original = getattr(owner, name)
+            self._saved.append((owner, name, original))
+
+            def timed(*args: Any, _f: Any = original, _label: str = label, **kwargs: Any) -> Any:
+                t0 = time.process_time()
+                try:
+                    return _f(*args, **kwargs)
+                finally:
+                    self.cpu_s[_label] += time.process_time() - t0
+
+            setattr(owner, name, timed)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for owner, name, original in reversed(self._saved):
+            setattr(owner, name, original)
+
+
+def floor(steps: int) -> dict[str, Any]:
+    """The work no env of this task can skip, measured inside the in-process env: each step's
+    12 FDM steps (flight controller + JSBSim), its camera image (render + pixel noise) and the
+    pad detection, in CPU ms per env step; the rest of the step is glue (session, MAVLink
+    semantics, telemetry, observation). ``bound_steps_per_s_on_2_idle_cores``: what 2 cores
+    would give if the glue and the inter-process hand-over cost nothing."""
+    import sitl.server
+    import sitl.vehicle
+    from companion.vision.perception import PadDetector
+
+    cfg = load_companion_config(PAPER)
+    env = LandingEnv(2, cfg, config_path=PAPER, inprocess=True)
+    parts = {"vehicle_12_fdm_steps": (sitl.vehicle.SimVehicle, "step"), "render_and_noise": (sitl.server, "render_frame"),
+             "pad_detection": (PadDetector, "detect")}
+    try:
+        _step_env(env, 100, np.random.default_rng(1))  # warm
+        with _CpuTimer(parts) as timer:
+            rate = _step_env(env, steps, np.random.default_rng(0))
+    finally:
+        env.close()
+    ms = {k: round(1000 * v / steps, 3) for k, v in timer.cpu_s.items()}
+    work = sum(ms.values())
+    return {"cpu_ms_per_step": ms, "work_ms_per_step": round(work, 3), "whole_step_ms": rate["cpu_ms_per_step"],
+            "glue_ms_per_step": round(rate["cpu_ms_per_step"] - work, 3),
+            "bound_steps_per_s_on_2_idle_cores": round(2 * 1000 / work, 1)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps (about a minute)")
@@ -146,6 +202,7 @@ def main() -> None:
         "inprocess_env": single(True, steps),
         "inprocess_2_workers": vectorised(2, 2 * steps),
         "profile": profile(max(300, steps // 3)),
+        "floor": floor(steps),
         "goal_steps_per_s": GOAL_STEPS_PER_S, "cores": os.cpu_count(),
         "load_avg_1min": [round(load0, 2), round(os.getloadavg()[0], 2)],
         "machine_ref_rt": round(ref, 1),

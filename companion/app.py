@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Protocol
 
+from colcommon.heap import release_free_heap
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
@@ -357,6 +358,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
                 result.records.append(record)
                 if on_episode is not None:
                     on_episode(record)
+                release_free_heap()  # a long run's resident memory grows with its data only
                 _stop_if_sitl_died(opened, i, run_dir)
         if runner is not None:
             runner.stop()
