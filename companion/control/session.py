@@ -240,12 +240,17 @@ class EpisodeRunner:
                     return snap
         return None
 
-    def _ensure_offboard(self, snap: VehicleSnapshot) -> VehicleSnapshot:
+    def _ensure_offboard(self, snap: VehicleSnapshot, mode_known: bool = True) -> VehicleSnapshot:
         """Enter the dialect's offboard mode. PX4: stream, then switch (OFFBOARD needs a fresh
         stream); ArduPilot: switch to GUIDED first (it is armed in it), then stream. The switch is
-        asked before this frame's answer, so in lockstep it lands in a known frame."""
+        asked before this frame's answer, so in lockstep it lands in a known frame.
+
+        ``mode_known=False`` (just after an episode reset, which leaves the vehicle holding): the
+        mode comes from HEARTBEATs, 1 Hz, and the reset's own may be lost on a lossy link; the
+        last one heard may still say offboard from the episode before. Then ask anyway (asking
+        for the mode the vehicle is in is accepted): otherwise the episode hovers in hold."""
         d = self.dialect
-        if d.is_offboard(snap.mode):
+        if mode_known and d.is_offboard(snap.mode):
             return snap
         if not d.stream_before_offboard:
             when_ready(lambda: self.p.link.set_mode(d.offboard_mode), f"enter {d.offboard_mode}",
@@ -291,7 +296,7 @@ class EpisodeRunner:
         else:
             snap = self._fly_to_start(seed)
             notes.append("started by flying to the start point")
-        return self._ensure_offboard(snap), notes
+        return self._ensure_offboard(snap, mode_known=self.p.simulator is None), notes
 
     def _wait_telemetry_after(self, time_boot_ms: int) -> VehicleSnapshot:
         for _ in range(100):

@@ -326,3 +326,16 @@ def test_an_offboard_refused_because_its_setpoint_was_lost_is_asked_again_after_
 
     # one setpoint before the first request, a longer stream before the retry
     assert len(link.sent) - sent_before >= 1 + RETRY_STREAM_FRAMES + record.steps
+
+
+def test_after_a_reset_offboard_is_asked_for_even_if_the_last_heartbeat_said_offboard() -> None:
+    """The reset leaves the vehicle holding; its HEARTBEAT saying so was lost (a lossy link), so
+    the last one heard still says OFFBOARD from the episode before. The start asks anyway:
+    without it the episode hovered in hold until its timeout."""
+    link = KinematicLink((0.0, 0.0, -3.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=5)
+    runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert link.modes == ["OFFBOARD"] and link.mode == "OFFBOARD"  # stale from here on
+    link.pos = np.array([0.0, 0.0, -3.0])
+    runner.run(1, Phase.DEMONSTRATION, seed=2)
+    assert link.modes == ["OFFBOARD", "OFFBOARD"]
