@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Protocol
 
-from colcommon.heap import release_free_heap
+from colcommon.heap import fix_mmap_threshold, release_free_heap
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
@@ -300,6 +300,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     ``human``: the person's input, instead of the one ``opts.pilot`` names (closed at the end).
     ``control``: an operator watching each step, who may pause, end an episode or stop the run.
     """
+    fix_mmap_threshold()  # a long run's memory grows with its data only (colcommon/heap.py)
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
     cfg = asking_config(cfg, opts.condition)

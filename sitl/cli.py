@@ -14,6 +14,7 @@ from typing import Annotated
 import typer
 
 from colcommon.errors import ConfigError
+from colcommon.heap import fix_mmap_threshold
 from colcommon.signing import read_key
 from sitl.config import SitlConfig, load_sitl_config
 from sitl.exposure import check_exposure
@@ -145,6 +146,7 @@ def run(
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
+    fix_mmap_threshold()  # a long-running SITL's memory stays what it uses (colcommon/heap.py)
     print("READY " + json.dumps(server.ports()), flush=True)
     server.serve(max_sim_s=duration)
     stats = server.stats
