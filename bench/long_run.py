@@ -28,7 +28,7 @@ from companion.app import RunOptions, run_episodes  # noqa: E402
 from companion.config import load_companion_config  # noqa: E402
 from companion.testing.fuzz_targets import rss_kib  # noqa: E402
 
-BYTES_PER_SAMPLE = 8 * (15 + 4 + 3)  # observation, action, episode/step/time, as float64 arrays
+BYTES_PER_SAMPLE = 4 * (15 + 4) + 1  # what the dataset keeps in memory: float32 observation and action, a bool
 
 
 def _sample(episode: int, steps: int, t0: float, dataset: int) -> dict[str, float | int]:
