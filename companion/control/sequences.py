@@ -8,14 +8,17 @@ live while waiting, and carried in the error when waiting is over.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 from companion.errors import ColError, CommandRejected
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect, EndOfRun
+from companion.link.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 ARM_RETRY_S = 1.0
@@ -96,3 +99,31 @@ def leave_safe(link: VehicleLink, dialect: Dialect, policy: EndOfRun) -> str:
         return f"failed: {exc}"
     log.info("vehicle left in %s (%s)", mode, policy)
     return mode
+
+
+@contextlib.contextmanager
+def streaming(link: VehicleLink, setpoint: VelocitySetpoint, period_s: float) -> Iterator[None]:
+    """Keep sending ``setpoint`` every ``period_s`` from a thread while the block runs.
+
+    Why: PX4 holds OFFBOARD only while setpoints keep coming (``COM_OF_LOSS_T``, 0.5 s), and a
+    mode request blocks until its COMMAND_ACK. On a lossy link the ACK is lost one time in ten;
+    the request is sent again a second later, and with the stream paused meanwhile the vehicle
+    has given OFFBOARD up (or refuses it: "stream setpoints first"). Real time only: in lockstep
+    every setpoint answers a frame and nothing is lost.
+    """
+    stop = threading.Event()
+
+    def run() -> None:
+        while not stop.wait(period_s):
+            try:
+                link.send_velocity_body(setpoint)
+            except ColError:  # a lost link: the caller's own wait reports it
+                pass
+
+    thread = threading.Thread(target=run, name="hold-stream", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()

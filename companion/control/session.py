@@ -10,6 +10,7 @@ after ``max_steps``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
@@ -25,7 +26,7 @@ from companion.config import SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
+from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
 from companion.errors import ColError, CommandRejected, LinkError, LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
@@ -266,7 +267,8 @@ class EpisodeRunner:
         for attempt in range(OFFBOARD_ATTEMPTS):
             nxt = self._stream_hold(1 if attempt == 0 else RETRY_STREAM_FRAMES, d.offboard_mode)
             try:
-                self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
+                with self._hold_stream_while_asking():
+                    self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
                 return nxt
             except CommandRejected:
                 # on a lossy link the one setpoint, or the request (then retried a second later,
@@ -274,6 +276,12 @@ class EpisodeRunner:
                 if attempt == OFFBOARD_ATTEMPTS - 1:
                     raise
         raise AssertionError("unreachable")
+
+    def _hold_stream_while_asking(self) -> contextlib.AbstractContextManager[None]:
+        """Real time: the hold setpoint keeps flowing while a mode request waits for its ACK."""
+        if self.p.lockstep:
+            return contextlib.nullcontext()
+        return streaming(self.p.link, HOLD, self.period_s)
 
     def _stream_hold(self, frames: int, mode: str) -> VehicleSnapshot:
         """Zero-velocity setpoints for ``frames`` frames (a retry streams longer); the last snapshot."""

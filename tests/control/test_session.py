@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping
 from dataclasses import replace
 
@@ -138,14 +139,14 @@ class Runner:
 
 
 def make_runner(link: KinematicLink, human: HumanInput, *, runner=None, fence_radius_m: float = 30.0,  # type: ignore[no-untyped-def]
-                max_steps: int = 60) -> tuple[EpisodeRunner, HumanDataset]:
+                max_steps: int = 60, lockstep: bool = True) -> tuple[EpisodeRunner, HumanDataset]:
     cfg = CompanionConfig()
     session = cfg.session.model_copy(update={"max_steps": max_steps})
     dataset = HumanDataset(None)
     parts = EpisodeParts(
         link=link, observer=Observer(None, PadDetector(), (320, 240)), mapper=CommandMapper(cfg.commands), human=human,
         fence=Geofence(fence_radius_m, -1.0, 25.0), limiter=SetpointLimiter(cfg.commands, cfg.safety),
-        cfg=session, lockstep=True, simulator=FakeSimulator(link), runner=runner, dataset=dataset,  # type: ignore[arg-type]
+        cfg=session, lockstep=lockstep, simulator=FakeSimulator(link), runner=runner, dataset=dataset,  # type: ignore[arg-type]
     )
     return EpisodeRunner(parts), dataset
 
@@ -339,3 +340,37 @@ def test_after_a_reset_offboard_is_asked_for_even_if_the_last_heartbeat_said_off
     link.pos = np.array([0.0, 0.0, -3.0])
     runner.run(1, Phase.DEMONSTRATION, seed=2)
     assert link.modes == ["OFFBOARD", "OFFBOARD"]
+
+
+class RealTimeKinematicLink(KinematicLink):
+    """Telemetry moves on as it is read (real time has no frames to wait for)."""
+
+    def state(self) -> VehicleSnapshot | None:
+        self.t_ms += FRAME_MS
+        return self._snap()
+
+
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_the_hold_stream_goes_on_while_offboard_is_asked_for_in_real_time_only(lockstep: bool) -> None:
+    """A mode request waits for its COMMAND_ACK (a second and more when the ACK is lost): in
+    real time the hold setpoint keeps flowing meanwhile, so PX4 neither drops OFFBOARD nor
+    refuses it as stale; in lockstep every setpoint answers a frame, and none is added."""
+    link = KinematicLink((0.0, 0.0, -3.0)) if lockstep else RealTimeKinematicLink((0.0, 0.0, -3.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=2, lockstep=lockstep)
+    sent_while_waiting: list[int] = []
+    real_set_mode = link.set_mode
+
+    def slow_ack(name: str) -> None:
+        before = len(link.sent)
+        time.sleep(0.5)  # 5 control periods
+        sent_while_waiting.append(len(link.sent) - before)
+        real_set_mode(name)
+
+    link.set_mode = slow_ack  # type: ignore[method-assign]
+    runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert link.modes == ["OFFBOARD"]
+    if lockstep:
+        assert sent_while_waiting == [0]
+    else:
+        assert sent_while_waiting[0] >= 3  # zero-velocity holds, before the episode's first command
+        assert all(sp.forward_m_s == sp.right_m_s == sp.down_m_s == 0.0 for sp, _ in link.sent[:1 + sent_while_waiting[0]])
