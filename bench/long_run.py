@@ -34,6 +34,7 @@ BYTES_PER_SAMPLE = 4 * (15 + 4) + 1  # what the dataset keeps in memory: float32
 def _sample(episode: int, steps: int, t0: float, dataset: int) -> dict[str, float | int]:
     return {
         "episode": episode, "steps": steps, "wall_s": round(time.monotonic() - t0, 3),
+        "cpu_s": round(time.process_time(), 3),  # this process, learner thread included: load-proof
         "rss_kib": rss_kib(os.getpid()), "fds": len(os.listdir("/proc/self/fd")),
         "threads": threading.active_count(), "dataset": dataset,
     }
@@ -51,6 +52,12 @@ def summarise(rows: list[dict], warmup: int) -> dict[str, object]:
         wall = part[-1]["wall_s"] - part[0]["wall_s"] if len(part) > 1 else 0.0
         return round(steps / wall, 1) if wall > 0 else 0.0
 
+    def cpu_ms(part: list[dict]) -> float | None:  # CPU per step: what other processes do not change
+        if len(part) < 2 or "cpu_s" not in part[0]:
+            return None
+        steps = sum(r["steps"] for r in part[1:])
+        return round(1000 * (part[-1]["cpu_s"] - part[0]["cpu_s"]) / steps, 3) if steps else None
+
     window = max(2, min(100, (len(rows) - warmup) // 2))
     return {
         "episodes_done": len(rows),
@@ -62,6 +69,8 @@ def summarise(rows: list[dict], warmup: int) -> dict[str, object]:
         "threads_at_warmup": base["threads"], "threads_end": last["threads"],
         "steps_per_s_after_warmup": speed(rows[warmup:warmup + window]),
         "steps_per_s_last": speed(rows[-window:]),
+        "cpu_ms_per_step_after_warmup": cpu_ms(rows[warmup:warmup + window]),
+        "cpu_ms_per_step_last": cpu_ms(rows[-window:]),
     }
 
 
@@ -73,8 +82,8 @@ def main() -> None:
     ap.add_argument("--summarise", type=Path, help="instead of running: summarise this progress file (a run cut short)")
     args = ap.parse_args()
     if args.summarise is not None:
-        rows = [json.loads(x) for x in args.summarise.read_text().splitlines() if x.strip()]
-        print(json.dumps({**summarise(rows, args.warmup), "warmup": args.warmup, "cut_short": True}))
+        done = [json.loads(x) for x in args.summarise.read_text().splitlines() if x.strip()]
+        print(json.dumps({**summarise(done, args.warmup), "warmup": args.warmup, "cut_short": True}))
         return
     machine_ref = machine_ref_rt()
     cfg = load_companion_config(None)
