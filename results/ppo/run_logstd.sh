@@ -1,14 +1,19 @@
 #!/bin/sh
-# PPO with 2 actions and our initial log-std -1 (docs/baselines.md "Sensitivity": it stopped the
-# drift of stable-baselines3's default, 1) to the full 1000 episodes, 3 seeds. Each run continues
-# the 200-episode sensitivity run of its seed: its folder was seeded with that run's log, its
-# final model as the checkpoint and "episodes": 200 (the log's length), and settings.json with
-# episodes = 1000; a resumed PPO run does exactly this after any stop. Resumable like the others.
+# PPO with our initial log-std -1 (docs/baselines.md "Sensitivity": it stopped the drift of
+# stable-baselines3's default, 0) for 2, 3 and 4 actions x seeds 0, 1, 2 x 1000 episodes; three
+# lanes, one per seed. Each 2-action run continues the 200-episode sensitivity run of its seed:
+# its folder was seeded with that run's log, its final model as the checkpoint and
+# "episodes": 200 (the log's length), and settings.json with episodes = 1000; a resumed PPO run
+# does exactly this after any stop. Resumable like the others; finished runs are skipped.
 #   sh results/ppo/run_logstd.sh          (from the repository root)
 set -u
 OUT=${OUT:-results/ppo/logstd-m1}
-run() {  # seed
-    nice -n 10 col ppo --actions 2 --seed "$1" --episodes 1000 --eval-episodes 100 --log-std-init -1 \
-        --config configs/paper.toml --out "$OUT/a2-s$1" >> "$OUT/a2-s$1.log" 2>&1
+run() {  # actions seed
+    nice -n 10 col ppo --actions "$1" --seed "$2" --episodes 1000 --eval-episodes 100 --log-std-init -1 \
+        --config configs/paper.toml --out "$OUT/a$1-s$2" >> "$OUT/a$1-s$2.log" 2>&1
 }
-run 0 & run 1 & run 2 & wait
+mkdir -p "$OUT"
+(run 2 0; run 3 0; run 4 0) &
+(run 2 1; run 3 1; run 4 1) &
+(run 2 2; run 3 2; run 4 2) &
+wait
