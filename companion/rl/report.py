@@ -127,7 +127,7 @@ def plot(result: dict[str, Any], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = plt.subplots(figsize=(11, 4.5))
     colours = {2: "tab:blue", 3: "tab:orange", 4: "tab:green"}
     for actions, colour in colours.items():
         band = result["curves"].get(f"a{actions}", [])
@@ -139,12 +139,13 @@ def plot(result: dict[str, Any], path: Path) -> None:
         episode, rate = PAPER_ENDPOINTS[actions]
         ax.scatter([episode], [100 * rate], marker="*", s=160, color=colour, edgecolor="black",
                    label=f"paper: PPO {actions} actions", zorder=5)
-    for label, extra in result.get("extra_curves", {}).items():
-        band = extra["curve"]
+    extra_colours = ("tab:purple", "tab:brown", "tab:pink", "tab:olive")  # each extra curve its own
+    for k, (label, extra) in enumerate(result.get("extra_curves", {}).items()):
+        band, colour = extra["curve"], extra_colours[k % len(extra_colours)]
         if band:
             x = np.array([b["first_episode"] + BLOCK for b in band])
-            ax.plot(x, [100 * b["mean"] for b in band], color="tab:purple", linestyle="--", label=label)
-            ax.fill_between(x, [100 * b["min"] for b in band], [100 * b["max"] for b in band], color="tab:purple", alpha=0.15)
+            ax.plot(x, [100 * b["mean"] for b in band], color=colour, linestyle="--", label=label)
+            ax.fill_between(x, [100 * b["min"] for b in band], [100 * b["max"] for b in band], color=colour, alpha=0.15)
     for rnd in result.get("random_policy", {}).values():
         ax.axhline(100 * rnd["success_rate"], color="grey", linestyle=":", linewidth=1,
                    label=f"uniformly random actions, {rnd['action_dims']} actions ({rnd['episodes']} episodes)")
@@ -156,7 +157,7 @@ def plot(result: dict[str, Any], path: Path) -> None:
     ax.set(xlabel="training episodes", ylabel="task completion (%)", xlim=(0, 1050), ylim=(-3, 103),
            title="Landing: PPO on the sparse reward vs CoL (training success per 50 episodes; band: min-max over seeds)")
     ax.title.set_fontsize(9)
-    ax.legend(fontsize=7, loc="center right")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
