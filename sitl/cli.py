@@ -8,6 +8,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -142,7 +143,10 @@ def run(
         raise typer.Exit(1) from None
 
     def _stop(signum: int, _frame: object) -> None:
-        server.stop()
+        # A handler runs in the main thread between two bytecodes, possibly inside Event.set: a
+        # second signal (the parent's death and a kill) calling server.stop() there waited for
+        # the lock its own thread held, forever. The stop goes to a thread of its own instead.
+        threading.Thread(target=server.stop, name="stop-on-signal", daemon=True).start()
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
