@@ -7,8 +7,10 @@
 #   sh results/ppo/run_grid.sh            (from the repository root)
 set -u
 OUT=${OUT:-results/ppo/grid}
+EXTRA=${EXTRA:-}  # more `col ppo` options for every run (run_logstd.sh: our initial log-std)
 run() {  # actions seed
-    nice -n 10 col ppo --actions "$1" --seed "$2" --episodes 1000 --eval-episodes 100 \
+    # shellcheck disable=SC2086  # EXTRA is a list of options
+    nice -n 10 col ppo --actions "$1" --seed "$2" --episodes 1000 --eval-episodes 100 $EXTRA \
         --config configs/paper.toml --out "$OUT/a$1-s$2" >> "$OUT/a$1-s$2.log" 2>&1
 }
 mkdir -p "$OUT"

@@ -7,13 +7,4 @@
 # does exactly this after any stop. Resumable like the others; finished runs are skipped.
 #   sh results/ppo/run_logstd.sh          (from the repository root)
 set -u
-OUT=${OUT:-results/ppo/logstd-m1}
-run() {  # actions seed
-    nice -n 10 col ppo --actions "$1" --seed "$2" --episodes 1000 --eval-episodes 100 --log-std-init -1 \
-        --config configs/paper.toml --out "$OUT/a$1-s$2" >> "$OUT/a$1-s$2.log" 2>&1
-}
-mkdir -p "$OUT"
-(run 2 0; run 3 0; run 4 0) &
-(run 2 1; run 3 1; run 4 1) &
-(run 2 2; run 3 2; run 4 2) &
-wait
+OUT=${OUT:-results/ppo/logstd-m1} EXTRA="--log-std-init -1" exec sh "$(dirname "$0")/run_grid.sh"
