@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from colcommon.heap import release_free_heap
 from sitl.config import SitlConfig
 from sitl.control import FlightController, Setpoint
 from sitl.disturbance import EpisodeDisturbance
@@ -388,7 +387,6 @@ class SimVehicle:
         self.world.restart(t, self.disturbance.vehicle_velocity_ne_m_s)
         start = self.world.episode_start(self.rng, t)
         self.dynamics = self._new_dynamics()
-        release_free_heap()  # the last episode's JSBSim is gone: its pages go back to the system
         self.dynamics.reset(tuple(start), yaw_rad=self.disturbance.yaw_rad, time_s=t)
         self._start_disturbance()
         self._enter_landed_disarmed()
