@@ -1,5 +1,7 @@
 """How many landing-env steps per second: the MAVLink env, the in-process env, and the
-in-process env in 2 worker processes (stable-baselines3 ``SubprocVecEnv``); where one in-process step's time
+in-process env in 2 worker processes (stable-baselines3 ``SubprocVecEnv``), 2 side by side with
+no hand-over (what two busy cores cost each other), and 8 envs grouped in 2 workers (the hand-over
+paid once per 4 env steps, ``GroupedSubprocVecEnv``); where one in-process step's time
 goes (a cProfile of the same stepping); and the floor: the CPU time of the work every step of
 this task needs whatever the env (vehicle, camera image, pad detection), the rest being glue.
 
@@ -84,23 +86,61 @@ def single(inprocess: bool, steps: int) -> dict[str, float]:
         env.close()
 
 
-def vectorised(n_envs: int, steps: int) -> dict[str, float]:
-    """``n_envs`` in-process envs in worker processes: total rates (workers' and our CPU time)."""
-    venv = make_vec_env(2, load_companion_config(PAPER), n_envs, PAPER)
+def vectorised(n_envs: int, steps: int, workers: int | None = None) -> dict[str, float]:
+    """``n_envs`` in-process envs in worker processes, one per env or ``workers`` stepping a group
+    each: total rates (workers' and our CPU time)."""
+    venv = make_vec_env(2, load_companion_config(PAPER), n_envs, PAPER, workers=workers)
     rng = np.random.default_rng(0)
     try:
         venv.seed(0)
         venv.reset()
         pids = [p.pid for p in venv.processes]  # type: ignore[attr-defined]
+        cores = len(pids)
         rounds = max(1, steps // n_envs)
         t0, c0, w0 = time.perf_counter(), time.process_time(), _cpu_s(pids)
         for _ in range(rounds):
             venv.step(rng.uniform(-1, 1, (n_envs, 2)).astype(np.float32))  # auto-resets
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0 + _cpu_s(pids) - w0
         rates = _rates(rounds * n_envs, wall, cpu)
-        return {**rates, f"steps_per_s_on_{n_envs}_idle_cores": round(n_envs * 1000 / rates["cpu_ms_per_step"], 1)}
+        return {**rates, "processes": cores,
+                f"steps_per_s_on_{cores}_idle_cores": round(cores * 1000 / rates["cpu_ms_per_step"], 1)}
     finally:
         venv.close()
+
+
+def _single_worker(steps: int, seed: int, queue: Any) -> None:
+    """A child process: one in-process env stepped on its own; its rates go back on ``queue``."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    cfg = load_companion_config(PAPER)
+    env = LandingEnv(2, cfg, config_path=PAPER, inprocess=True)
+    try:
+        queue.put(_step_env(env, steps, np.random.default_rng(seed)))
+    finally:
+        env.close()
+
+
+def side_by_side(n_envs: int, steps: int) -> dict[str, float]:
+    """``n_envs`` in-process envs, each stepped by a process of its own with no hand-over at all:
+    the CPU ms per step they need when the cores are all busy. Beside ``single(True)`` (one core
+    busy) and ``vectorised`` (the same envs behind pipes) it splits the workers' extra cost into
+    the hand-over and what busy neighbours cost (shared cache, memory bandwidth, clock)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("forkserver")
+    queue = ctx.Queue()
+    procs = [ctx.Process(target=_single_worker, args=(steps, seed, queue)) for seed in range(n_envs)]
+    t0 = time.perf_counter()
+    for proc in procs:
+        proc.start()
+    rates = [queue.get(timeout=600) for _ in procs]
+    for proc in procs:
+        proc.join()
+    wall = time.perf_counter() - t0  # includes each child's start (SITL and imports): a lower bound
+    cpu_ms = sum(r["cpu_ms_per_step"] for r in rates) / n_envs
+    return {"cpu_ms_per_step": round(cpu_ms, 3), "steps_per_s_per_idle_core": round(1000 / cpu_ms, 1),
+            "steps_per_s_each": [r["steps_per_s"] for r in rates],
+            "steps_per_s_incl_start": round(n_envs * steps / wall, 1),
+            f"steps_per_s_on_{n_envs}_idle_cores": round(n_envs * 1000 / cpu_ms, 1)}
 
 
 def profile(steps: int) -> dict[str, Any]:
@@ -201,6 +241,8 @@ def main() -> None:
         "mavlink_env": single(False, steps),
         "inprocess_env": single(True, steps),
         "inprocess_2_workers": vectorised(2, 2 * steps),
+        "inprocess_2_side_by_side": side_by_side(2, steps),
+        "inprocess_8_envs_in_2_workers": vectorised(8, 2 * steps, workers=2),
         "profile": profile(max(300, steps // 3)),
         "floor": floor(steps),
         "goal_steps_per_s": GOAL_STEPS_PER_S, "cores": os.cpu_count(),

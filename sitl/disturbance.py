@@ -144,7 +144,7 @@ class EpisodeDisturbance:
         return cv2.add(image, field[top:top + h, left:left + w], dtype=cv2.CV_8U)
 
 
-@lru_cache(maxsize=4)
+@lru_cache(maxsize=64)
 def _attitude_block(seed: tuple[int, ...], block: int) -> np.ndarray:
     """Standard normals for the attitude noise of FDM steps ``block * B .. block * B + B - 1``:
     one generator per block (a second of steps) instead of one per step."""
@@ -165,7 +165,7 @@ def _normal_quantiles() -> np.ndarray:
     return np.array([dist.inv_cdf((i + 0.5) / _NOISE_LEVELS) for i in range(_NOISE_LEVELS)])
 
 
-@lru_cache(maxsize=2)
+@lru_cache(maxsize=16)
 def _noise_field(seed: tuple[int, ...], std: float, shape: tuple[int, ...]) -> np.ndarray:
     """An episode's pixel noise (int16), twice the image's height and width: uniform 16-bit
     draws through a table of rounded ``std``-scaled normal quantiles (five times faster than

@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from companion.config import CompanionConfig
 from companion.errors import ConfigError
+from companion.rl.grouped_vec_env import GroupedSubprocVecEnv
 from companion.rl.gym_env import DESCENT_THROTTLE, LandingEnv
 
 
@@ -32,8 +33,11 @@ def env_factory(action_dims: int, cfg: CompanionConfig, config_path: Path | None
 
 
 def make_vec_env(action_dims: int, cfg: CompanionConfig, n_envs: int = 1, config_path: Path | None = None,
-                 *, inprocess: bool = True, subprocess: bool | None = None) -> VecEnv:
-    """``n_envs`` envs; in worker processes when ``subprocess`` (default: when ``n_envs > 1``).
+                 *, inprocess: bool = True, subprocess: bool | None = None, workers: int | None = None) -> VecEnv:
+    """``n_envs`` envs; in worker processes when ``subprocess`` (default: when ``n_envs > 1``),
+    one per env, or ``workers`` processes each stepping a group of envs per message
+    (:class:`~companion.rl.grouped_vec_env.GroupedSubprocVecEnv`: the pipe's hand-over paid once
+    per group, not once per env).
 
     stable-baselines3 seeds env ``k`` with ``seed + k`` on the first reset; later resets continue
     each env's own seeds (``LandingEnv.reset`` without a seed), so starts of different envs can
@@ -42,6 +46,8 @@ def make_vec_env(action_dims: int, cfg: CompanionConfig, n_envs: int = 1, config
     if n_envs < 1:
         raise ConfigError(f"n_envs must be at least 1, got {n_envs}")
     factories = [env_factory(action_dims, cfg, config_path, inprocess=inprocess) for _ in range(n_envs)]
+    if workers is not None and workers < n_envs:
+        return GroupedSubprocVecEnv(factories, workers)
     if subprocess if subprocess is not None else n_envs > 1:
         return SubprocVecEnv(factories, start_method="forkserver")
     return DummyVecEnv(factories)

@@ -24,6 +24,13 @@ case "${1:-all}" in
     col4) tune col4-bc1 "$C4" ;;
     col4-logstd0) same_before col4-logstd0; tune col4-logstd0 "$C4" --episodes 50 --log-std-init 0 ;;
     col4-nobc) same_before col4-nobc; tune col4-nobc "$C4" --bc-weight 0 ;;
+    # Two more fine-tuning seeds of both CoL@4 rows, in two lanes. A seed also moves the
+    # training starts (episode i starts from seed + i), so seeds 1000 and 2000 train on starts
+    # that no other row used.
+    col4-seeds)
+        (for s in 1000 2000; do same_before "col4-bc1-s$s"; tune "col4-bc1-s$s" "$C4" --seed "$s"; done) &
+        (for s in 1000 2000; do same_before "col4-nobc-s$s"; tune "col4-nobc-s$s" "$C4" --bc-weight 0 --seed "$s"; done) &
+        wait ;;
     *) tune bc1 "$D/col8-P1/checkpoints/episode_007.npz"; tune col4-bc1 "$C4"
        same_before col4-logstd0; tune col4-logstd0 "$C4" --episodes 50 --log-std-init 0
        same_before col4-nobc; tune col4-nobc "$C4" --bc-weight 0 ;;

@@ -1,0 +1,192 @@
+"""Many envs in few worker processes: each worker steps a group of envs per message.
+
+stable-baselines3's ``SubprocVecEnv`` puts one env in each process and hands every step over a
+pipe: two messages and two wake-ups of another process per env step. On this task that
+hand-over cost about as much CPU as the env step itself (docs/baselines.md, "Speed of the
+env"). Here ``n_workers`` processes each hold ``envs_per_worker`` envs in a ``DummyVecEnv`` and
+step all of them on one message, so the hand-over is paid once per group. What each env sees
+(seeds, actions, auto-reset, ``terminal_observation``) is the ``DummyVecEnv``'s, so a grouped
+vec env gives the same observations as a ``DummyVecEnv`` of the same envs (tests/rl).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections.abc import Callable, Sequence
+from multiprocessing.connection import Connection
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import (
+    CloudpickleWrapper,
+    VecEnvIndices,
+    VecEnvObs,
+    VecEnvStepReturn,
+)
+
+from companion.errors import ConfigError
+
+
+def _serve(remote: Connection, parent_remote: Connection, factories: CloudpickleWrapper) -> None:
+    """A worker: builds its group of envs, then answers the parent's commands until "close"."""
+    parent_remote.close()
+    group = DummyVecEnv(factories.var)
+    try:
+        while True:
+            try:
+                cmd, data = remote.recv()
+            except EOFError:  # the parent is gone
+                return
+            if cmd == "close":
+                remote.send(None)
+                return
+            try:
+                answer = _answer(group, cmd, data)
+            except Exception as exc:  # noqa: BLE001 - the parent raises it: the worker stays up to close
+                answer = exc
+            remote.send(answer)
+    finally:
+        group.close()
+        remote.close()
+
+
+def _answer(group: DummyVecEnv, cmd: str, data: Any) -> Any:
+    """What a worker answers to one command (the envs' own seeds, auto-reset and
+    ``terminal_observation`` are the ``DummyVecEnv``'s)."""
+    if cmd == "step":
+        group.step_async(data)
+        return (*group.step_wait(), group.reset_infos)
+    if cmd == "reset":
+        group._seeds, group._options = list(data[0]), list(data[1])
+        return group.reset(), group.reset_infos
+    if cmd == "spaces":
+        return group.observation_space, group.action_space
+    if cmd == "get_attr":
+        return group.get_attr(data[0], data[1])
+    if cmd == "set_attr":
+        return group.set_attr(data[0], data[1], data[2])
+    if cmd == "env_method":
+        return group.env_method(data[0], *data[1], indices=data[2], **data[3])
+    if cmd == "is_wrapped":
+        return group.env_is_wrapped(data[0], data[1])
+    raise NotImplementedError(f"unknown command {cmd!r}")
+
+
+class GroupedSubprocVecEnv(VecEnv):
+    """``len(factories)`` envs in ``n_workers`` processes (envs split as evenly as possible, in
+    order: env ``i`` is in worker ``i // ceil(n / n_workers)``)."""
+
+    def __init__(self, factories: Sequence[Callable[[], gym.Env[Any, Any]]], n_workers: int,
+                 start_method: str = "forkserver") -> None:
+        if not factories:
+            raise ConfigError("a grouped vec env needs at least one env")
+        if not 1 <= n_workers <= len(factories):
+            raise ConfigError(f"n_workers must be between 1 and the number of envs ({len(factories)}), got {n_workers}")
+        size = -(-len(factories) // n_workers)
+        groups = [list(factories[i:i + size]) for i in range(0, len(factories), size)]
+        self._slices = [slice(i, i + len(g)) for i, g in zip(range(0, len(factories), size), groups, strict=True)]
+        ctx: Any = mp.get_context(start_method)  # typeshed's BaseContext lacks Process and Pipe
+        self.remotes: list[Connection] = []
+        self.processes: list[Any] = []
+        for group in groups:
+            remote, work_remote = ctx.Pipe()
+            proc = ctx.Process(target=_serve, args=(work_remote, remote, CloudpickleWrapper(group)), daemon=True)
+            proc.start()
+            work_remote.close()
+            self.remotes.append(remote)
+            self.processes.append(proc)
+        self.closed = False
+        self.waiting = False
+        self.remotes[0].send(("spaces", None))
+        observation_space, action_space = self._recv(self.remotes[0])
+        super().__init__(len(factories), observation_space, action_space)
+
+    @staticmethod
+    def _recv(remote: Connection) -> Any:
+        answer = remote.recv()
+        if isinstance(answer, Exception):
+            raise answer
+        return answer
+
+    def _local(self, indices: VecEnvIndices) -> list[tuple[Connection, list[int]]]:
+        """Each worker holding some of ``indices``, with those envs' indices within its group."""
+        wanted = set(self._get_indices(indices))
+        out = []
+        for remote, part in zip(self.remotes, self._slices, strict=True):
+            local = [i - part.start for i in range(part.start, part.stop) if i in wanted]
+            if local:
+                out.append((remote, local))
+        return out
+
+    def step_async(self, actions: np.ndarray) -> None:
+        for remote, part in zip(self.remotes, self._slices, strict=True):
+            remote.send(("step", actions[part]))
+        self.waiting = True
+
+    def step_wait(self) -> VecEnvStepReturn:
+        answers = [self._recv(remote) for remote in self.remotes]
+        self.waiting = False
+        obs = np.concatenate([a[0] for a in answers])
+        rewards = np.concatenate([a[1] for a in answers])
+        dones = np.concatenate([a[2] for a in answers])
+        infos = [info for a in answers for info in a[3]]
+        self.reset_infos = [info for a in answers for info in a[4]]
+        return obs, rewards, dones, infos
+
+    def reset(self) -> VecEnvObs:
+        for remote, part in zip(self.remotes, self._slices, strict=True):
+            remote.send(("reset", (self._seeds[part], self._options[part])))
+        answers = [self._recv(remote) for remote in self.remotes]
+        self.reset_infos = [info for a in answers for info in a[1]]
+        self._reset_seeds()
+        self._reset_options()
+        return np.concatenate([a[0] for a in answers])
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        if self.waiting:
+            for remote in self.remotes:
+                remote.recv()
+        for remote in self.remotes:
+            try:
+                remote.send(("close", None))
+                remote.recv()
+            except (EOFError, BrokenPipeError, ConnectionResetError):
+                pass  # that worker is already gone
+        for proc in self.processes:
+            proc.join(timeout=30)
+            if proc.is_alive():
+                proc.terminate()
+        for remote in self.remotes:
+            remote.close()
+        self.closed = True
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        parts = self._local(indices)
+        for remote, local in parts:
+            remote.send(("get_attr", (attr_name, local)))
+        return [value for remote, _ in parts for value in self._recv(remote)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        parts = self._local(indices)
+        for remote, local in parts:
+            remote.send(("set_attr", (attr_name, value, local)))
+        for remote, _ in parts:
+            self._recv(remote)
+
+    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None,
+                   **method_kwargs: Any) -> list[Any]:
+        parts = self._local(indices)
+        for remote, local in parts:
+            remote.send(("env_method", (method_name, method_args, local, method_kwargs)))
+        return [value for remote, _ in parts for value in self._recv(remote)]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper[Any, Any, Any, Any]],
+                       indices: VecEnvIndices = None) -> list[bool]:
+        parts = self._local(indices)
+        for remote, local in parts:
+            remote.send(("is_wrapped", (wrapper_class, local)))
+        return [value for remote, _ in parts for value in self._recv(remote)]
