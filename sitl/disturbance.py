@@ -135,13 +135,22 @@ class EpisodeDisturbance:
         fresh-looking in every frame, for 0.1 ms instead of 0.7 ms of drawing per frame."""
         if self.image_noise_std <= 0.0:
             return image
-        import cv2  # here: a SITL without camera does not load OpenCV
-
         h, w = image.shape[:2]
-        field = _noise_field(self.seed, self.image_noise_std, image.shape)
+        up, down = _noise_field(self.seed, self.image_noise_std, image.shape)
         rng = _rng(STREAM_NOISE_WINDOW, self.seed, step)
-        top, left = (int(x) for x in rng.integers(0, (field.shape[0] - h + 1, field.shape[1] - w + 1)))
-        return cv2.add(image, field[top:top + h, left:left + w], dtype=cv2.CV_8U)
+        top, left = (int(x) for x in rng.integers(0, (up.shape[0] - h + 1, up.shape[1] - w + 1)))
+        return saturated_add(image, up[top:top + h, left:left + w], down[top:top + h, left:left + w])
+
+
+def saturated_add(image: np.ndarray, up: np.ndarray, down: np.ndarray) -> np.ndarray:
+    """``clip(image + up - down, 0, 255)`` for uint8 arrays where, per element, ``up`` or
+    ``down`` is 0: two saturating uint8 operations, 6 times faster than OpenCV's add of an
+    int16 noise (which works in int32), and the same pixels (the first operation saturates only
+    where the second adds nothing)."""
+    import cv2  # here: a SITL without camera does not load OpenCV
+
+    out = cv2.add(image, up)
+    return cv2.subtract(out, down, dst=out)
 
 
 @lru_cache(maxsize=64)
@@ -166,11 +175,12 @@ def _normal_quantiles() -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _noise_field(seed: tuple[int, ...], std: float, shape: tuple[int, ...]) -> np.ndarray:
-    """An episode's pixel noise (int16), twice the image's height and width: uniform 16-bit
-    draws through a table of rounded ``std``-scaled normal quantiles (five times faster than
-    drawing normals)."""
+def _noise_field(seed: tuple[int, ...], std: float, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """An episode's pixel noise, twice the image's height and width, as its positive and
+    negative parts (uint8, one of them 0 at each element): uniform 16-bit draws through a table
+    of rounded ``std``-scaled normal quantiles (five times faster than drawing normals)."""
     table = np.round(_normal_quantiles() * std).astype(np.int16)
     rng = _rng(STREAM_NOISE_FIELD, seed)
     index = rng.integers(0, _NOISE_LEVELS, size=(2 * shape[0], 2 * shape[1], *shape[2:]), dtype=np.uint16)
-    return table[index]
+    noise = table[index]
+    return np.clip(noise, 0, 255).astype(np.uint8), np.clip(-noise, 0, 255).astype(np.uint8)

@@ -7,7 +7,6 @@ without sockets.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -78,44 +77,37 @@ def initial_snapshot(msg: Any, now_s: float) -> VehicleSnapshot:
     )
 
 
-def _heartbeat(s: VehicleSnapshot, msg: Any, now_s: float) -> VehicleSnapshot:
-    return replace(
-        s,
-        armed=bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED),
-        mode=mode_name(msg),
-        heartbeat_s=now_s,
-    )
+# Each handler gives the fields a message changes; apply_message makes one new snapshot of them.
+def _heartbeat(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"armed": bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED), "mode": mode_name(msg), "heartbeat_s": now_s}
 
 
-def _local_position(s: VehicleSnapshot, msg: Any, now_s: float) -> VehicleSnapshot:
-    return replace(
-        s,
-        time_boot_ms=int(msg.time_boot_ms),
-        position_ned_m=_finite(msg.x, msg.y, msg.z),
-        velocity_ned_m_s=_finite(msg.vx, msg.vy, msg.vz),
-        position_valid=True,
-    )
+def _local_position(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"time_boot_ms": int(msg.time_boot_ms), "position_ned_m": _finite(msg.x, msg.y, msg.z),
+            "velocity_ned_m_s": _finite(msg.vx, msg.vy, msg.vz), "position_valid": True}
 
 
-def _attitude(s: VehicleSnapshot, msg: Any, now_s: float) -> VehicleSnapshot:
-    return replace(
-        s,
-        time_boot_ms=int(msg.time_boot_ms),
-        attitude_rad=_finite(msg.roll, msg.pitch, msg.yaw),
-        rates_frd_rad_s=_finite(msg.rollspeed, msg.pitchspeed, msg.yawspeed),
-        attitude_valid=True,
-    )
+def _attitude(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"time_boot_ms": int(msg.time_boot_ms), "attitude_rad": _finite(msg.roll, msg.pitch, msg.yaw),
+            "rates_frd_rad_s": _finite(msg.rollspeed, msg.pitchspeed, msg.yawspeed), "attitude_valid": True}
 
 
-def _extended_sys_state(s: VehicleSnapshot, msg: Any, now_s: float) -> VehicleSnapshot:
+def _extended_sys_state(msg: Any, now_s: float) -> dict[str, Any]:
     state = int(msg.landed_state)
-    return replace(
-        s, landed_state=LANDED_STATES[state] if state < len(LANDED_STATES) else "UNDEFINED"
-    )
+    return {"landed_state": LANDED_STATES[state] if state < len(LANDED_STATES) else "UNDEFINED"}
 
 
-def _system_time(s: VehicleSnapshot, msg: Any, now_s: float) -> VehicleSnapshot:
-    return replace(s, time_boot_ms=int(msg.time_boot_ms))
+def _system_time(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"time_boot_ms": int(msg.time_boot_ms)}
+
+
+def _with(snapshot: VehicleSnapshot, changes: dict[str, Any]) -> VehicleSnapshot:
+    """``dataclasses.replace`` without its per-field getattr and ``__init__``: a snapshot has no
+    validation to rerun, and this runs for every message (five per lockstep frame)."""
+    new = object.__new__(VehicleSnapshot)
+    new.__dict__.update(snapshot.__dict__)
+    new.__dict__.update(changes)
+    return new
 
 
 HANDLERS = {
@@ -139,7 +131,8 @@ def apply_message(
     if kind == "HEARTBEAT" and not is_vehicle_heartbeat(msg):
         return snapshot
     handler = HANDLERS.get(kind)
-    new = handler(snapshot, msg, now_s) if handler else snapshot
+    changes = handler(msg, now_s) if handler else {}
     if kind == frame_marker and hasattr(msg, "time_boot_ms"):
-        new = replace(new, frame_time_boot_ms=int(msg.time_boot_ms))
-    return replace(new, received_s=now_s)
+        changes["frame_time_boot_ms"] = int(msg.time_boot_ms)
+    changes["received_s"] = now_s
+    return _with(snapshot, changes)

@@ -457,6 +457,35 @@ def test_telemetry_folds_into_a_new_snapshot_and_marks_frames() -> None:
     assert apply_message(first, landed, 2.0, "SYSTEM_TIME").landed_state == "LANDING"
 
 
+def test_each_message_changes_exactly_the_fields_its_handler_names() -> None:
+    import dataclasses
+
+    from companion.link.base import VehicleSnapshot
+    from companion.link.telemetry import HANDLERS, apply_message, initial_snapshot
+
+    enc = _encoder()
+    beat = _decoded(enc.heartbeat_encode(2, 12, 0x81, px4_modes.custom_mode("OFFBOARD"), 4), enc)
+    first = initial_snapshot(beat, now_s=1.0)
+    messages = {
+        "HEARTBEAT": beat,
+        "LOCAL_POSITION_NED": _decoded(enc.local_position_ned_encode(500, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3), enc),
+        "ATTITUDE": _decoded(enc.attitude_encode(510, 0.1, -0.2, 0.3, 0.01, 0.02, 0.03), enc),
+        "EXTENDED_SYS_STATE": _decoded(enc.extended_sys_state_encode(0, 2), enc),
+        "SYSTEM_TIME": _decoded(enc.system_time_encode(0, 600), enc),
+    }
+    assert messages.keys() == HANDLERS.keys()
+    names = {f.name for f in dataclasses.fields(VehicleSnapshot)}
+    for kind, msg in messages.items():
+        changes = HANDLERS[kind](msg, 2.0)
+        assert changes.keys() <= names, kind
+        got = apply_message(first, msg, 2.0, "SYSTEM_TIME")
+        marker = {"frame_time_boot_ms": 600} if kind == "SYSTEM_TIME" else {}
+        assert got == dataclasses.replace(first, **changes, **marker, received_s=2.0), kind
+        assert type(got) is VehicleSnapshot and hash(got) == hash(dataclasses.replace(got))
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            got.armed = False  # type: ignore[misc]
+
+
 def test_heartbeats_of_cameras_and_ground_stations_do_not_change_the_vehicle_state() -> None:
     from companion.link.telemetry import apply_message, initial_snapshot, is_vehicle_heartbeat
 

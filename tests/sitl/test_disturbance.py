@@ -17,7 +17,7 @@ from colcommon.errors import ConfigError
 from sitl.camera import CameraRenderer
 from sitl.config import DisturbanceConfig, SitlConfig, load_sitl_config
 from sitl.control_surface import handle_request
-from sitl.disturbance import EpisodeDisturbance
+from sitl.disturbance import EpisodeDisturbance, saturated_add
 from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Atmosphere, Dynamics
 from sitl.modes import Mode
 from sitl.offboard import FRAME_BODY_NED, TargetFields
@@ -392,3 +392,25 @@ def test_a_disturbed_lockstep_episode_repeats_bit_for_bit_over_the_wire(tmp_path
     assert a[:2] == b[:2]
     assert a[2]["vehicle_ned"] == b[2]["vehicle_ned"] and a[2]["wind_ned"] == b[2]["wind_ned"]
     assert math.hypot(*a[2]["wind_ned"][:2]) > 3.0
+
+
+def test_saturated_add_is_the_clipped_sum_of_image_and_noise() -> None:
+    rng = np.random.default_rng(11)
+    image = rng.integers(0, 256, size=(60, 80, 3), dtype=np.uint8)
+    image[:5] = 0
+    image[-5:] = 255  # both saturations reached
+    noise = rng.integers(-300, 301, size=image.shape)  # beyond the uint8 range too
+    up, down = np.clip(noise, 0, 255).astype(np.uint8), np.clip(-noise, 0, 255).astype(np.uint8)
+    want = np.clip(image.astype(int) + noise, 0, 255).astype(np.uint8)
+    assert np.array_equal(saturated_add(image, up, down), want)
+
+
+def test_image_noise_of_a_frame_is_the_clipped_sum_with_a_window_of_the_episodes_field() -> None:
+    d = EpisodeDisturbance(image_noise_std=20.0, seed=(4,))
+    image = np.full((48, 64, 3), 128, np.uint8)
+    image[:, :8] = 250
+    noisy = d.add_image_noise(image, 9)
+    diff = noisy.astype(int) - image
+    assert diff[:, 8:].std() == pytest.approx(20.0, rel=0.1)
+    assert (noisy[:, :8] <= 255).all() and diff[:, :8].max() <= 5  # saturated, not wrapped
+    assert np.array_equal(d.add_image_noise(image, 9), noisy) and not np.array_equal(d.add_image_noise(image, 10), noisy)
