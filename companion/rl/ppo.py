@@ -222,16 +222,20 @@ def learning_curve(episodes: list[dict[str, Any]], blocks: int = 10, size: int |
 
 
 def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = None,
-            config_path: Path | None = None, on_episode: EpisodeHook | None = None) -> dict[str, Any]:
+            config_path: Path | None = None, on_episode: EpisodeHook | None = None,
+            workers: int | None = None) -> dict[str, Any]:
     """Train, save ``model.zip`` and ``train_episodes.jsonl``, evaluate, write ``results.json``.
-    A folder with ``results.json`` is done (returned as is); one with a checkpoint continues."""
+    A folder with ``results.json`` is done (returned as is); one with a checkpoint continues.
+    ``workers``: processes the ``n_envs`` envs run in (default one per env); speed only, the
+    episodes are the same (:mod:`companion.rl.grouped_vec_env`), so it is not a setting."""
     cfg = cfg or CompanionConfig()
     out_dir.mkdir(parents=True, exist_ok=True)
     if (out_dir / "results.json").exists():
         return dict(json.loads((out_dir / "results.json").read_text()))
     _check_same_settings(out_dir, settings)
     torch.set_num_threads(cfg.learner.torch_threads)
-    venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess)
+    venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess,
+                        workers=workers)
     try:
         wall0 = time.monotonic()
         with (out_dir / "train_episodes.jsonl").open("a") as log_file:

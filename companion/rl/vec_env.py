@@ -46,6 +46,8 @@ def make_vec_env(action_dims: int, cfg: CompanionConfig, n_envs: int = 1, config
     if n_envs < 1:
         raise ConfigError(f"n_envs must be at least 1, got {n_envs}")
     factories = [env_factory(action_dims, cfg, config_path, inprocess=inprocess) for _ in range(n_envs)]
+    if workers is not None and not 1 <= workers <= n_envs:
+        raise ConfigError(f"workers must be between 1 and the number of envs ({n_envs}), got {workers}")
     if workers is not None and workers < n_envs:
         return GroupedSubprocVecEnv(factories, workers)
     if subprocess if subprocess is not None else n_envs > 1:

@@ -75,6 +75,20 @@ def test_training_repeats_exactly_for_a_seed(tmp_path: Path) -> None:
     assert first["eval"] == second["eval"]
 
 
+@pytest.mark.e2e
+def test_envs_grouped_in_one_worker_train_the_same_run_as_one_worker_per_env(tmp_path: Path) -> None:
+    settings = PpoSettings(**{**TINY, "n_envs": 2, "eval_episodes": 1})
+    grouped = run_ppo(settings, tmp_path / "grouped", workers=1)
+    apart = run_ppo(settings, tmp_path / "apart")
+    assert _records(tmp_path / "grouped") == _records(tmp_path / "apart")
+    assert len(_records(tmp_path / "grouped")) >= 2
+    grouped["eval"].pop("wall_s")
+    apart["eval"].pop("wall_s")
+    assert grouped["eval"] == apart["eval"]
+    with pytest.raises(ConfigError, match="workers"):
+        make_vec_env(2, CompanionConfig(), n_envs=2, workers=3)
+
+
 class Interrupt(Exception):
     """Stands in for Ctrl-C in the middle of training."""
 
