@@ -164,6 +164,58 @@ def plot(result: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+def _held_out(folder: Path, trained: int) -> str:
+    """A run's policy on the held-out starts: the final one, else the last checkpoint's."""
+    if (folder / "results.json").exists():
+        ev, after = json.loads((folder / "results.json").read_text())["eval"], trained
+    elif (folder / "checkpoint_eval.json").exists():
+        flown = json.loads((folder / "checkpoint_eval.json").read_text())
+        ev, after = flown["eval"], flown["train_episodes_seen"]
+    else:
+        return "not flown (unfinished)"
+    lo, hi = ev["ci95"]
+    median = ev.get("touchdown_distance_m_median")
+    return (f"{ev['successes']}/{ev['episodes']} ({100 * lo:.0f}-{100 * hi:.0f} %); {ev['touchdowns']} touchdowns, "
+            f"{ev['timeouts']} timeouts, {ev['fence']} fence exits" + (f"; median {median} m" if median is not None else "")
+            + f" (policy after {after} episodes)")
+
+
+def run_row(folder: Path, name: str) -> str:
+    """One markdown table row of a PPO run folder: its settings, training outcomes, the median
+    touchdown distance per block and successes per 100 episodes, and its held-out evaluation."""
+    settings = json.loads((folder / "settings.json").read_text())
+    episodes = _episodes(folder)
+    outcomes: dict[str, int] = {}
+    for e in episodes:
+        outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1
+    block = 200 if len(episodes) > 400 else 50
+    medians = []
+    for i in range(0, len(episodes), block):
+        near = [e["touchdown_distance_m"] for e in episodes[i:i + block] if e["touchdown_distance_m"] is not None]
+        medians.append(f"{statistics.median(near):.1f}" if near else "-")
+    per_100 = [sum(bool(e["success"]) for e in episodes[i:i + 100]) for i in range(0, len(episodes), 100)]
+    cells = [name, settings["action_dims"], settings["seed"], settings["log_std_init"],
+             "yes" if settings.get("normalize_advantage", True) else "no", len(episodes),
+             sum(bool(e["success"]) for e in episodes), ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items())),
+             f"{', '.join(medians)} (per {block})", ", ".join(map(str, per_100)), _held_out(folder, len(episodes))]
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+RUNS_HEADER = ("| run | actions | seed | initial log-std | advantages normalised | training episodes | training successes "
+               "| training outcomes | median touchdown distance (m) | training successes per 100 episodes "
+               "| policy on the held-out starts |\n" + "| --- " * 11 + "|")
+
+
+def runs_table(root: Path, names: list[str]) -> str:
+    """The markdown table of these run folders (paths relative to ``root``) of docs/baselines.md."""
+    return "\n".join([RUNS_HEADER, *(run_row(root / name, name) for name in names)]) + "\n"
+
+
+def _episodes(folder: Path) -> list[dict[str, Any]]:
+    path = folder / "train_episodes.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("grid", type=Path, help="folder of a<actions>-s<seed> PPO runs")
@@ -171,6 +223,8 @@ def main() -> None:
     parser.add_argument("--col", type=Path, help="results.jsonl of col experiment")
     parser.add_argument("--curve", action="append", default=[], metavar="LABEL=DIR,DIR,...",
                         help="an extra curve from these run folders (e.g. a sensitivity setting over seeds)")
+    parser.add_argument("--table", nargs="+", default=[], metavar="RUN",
+                        help="also write runs.md: a table of these run folders (relative to the grid's parent)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
     extra = {}
@@ -181,6 +235,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "summary.json").write_text(json.dumps(result, indent=1) + "\n")
     plot(result, args.out / "learning_curves.png")
+    if args.table:
+        (args.out / "runs.md").write_text(runs_table(args.grid.parent, args.table))
     print(json.dumps({k: result[k] for k in ("training_episodes", "training_successes", "final_policies")}))
 
 

@@ -45,3 +45,20 @@ def test_summary_and_plot_with_final_evaluations_and_col(tmp_path: Path) -> None
     assert result["final_policies"]["a3-s0"]["successes"] == 7 and result["training_successes"] == {"a3": {"0": 0}}
     plot(result, tmp_path / "curves.png")
     assert (tmp_path / "curves.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_runs_table_row_counts_outcomes_blocks_and_the_held_out_evaluation(tmp_path: Path) -> None:
+    from companion.rl.report import RUNS_HEADER, runs_table
+
+    final = {"eval": {"episodes": 100, "successes": 7, "success_rate": 0.07, "ci95": [0.03, 0.14], "touchdowns": 90,
+                      "timeouts": 5, "fence": 5, "touchdown_distance_m_median": 1.5}}
+    write_run(tmp_path / "g" / "a2-s1", [False] * 60 + [True] * 90, final)
+    (tmp_path / "g" / "a2-s1" / "settings.json").write_text(json.dumps({"action_dims": 2, "seed": 1, "log_std_init": -1.0}))
+    write_run(tmp_path / "g" / "a4-s0", [False] * 3)
+    (tmp_path / "g" / "a4-s0" / "settings.json").write_text(json.dumps(
+        {"action_dims": 4, "seed": 0, "log_std_init": 0.0, "normalize_advantage": False}))
+    table = runs_table(tmp_path, ["g/a2-s1", "g/a4-s0"]).splitlines()
+    assert table[:2] == RUNS_HEADER.splitlines()
+    assert table[2] == ("| g/a2-s1 | 2 | 1 | -1.0 | yes | 150 | 90 | touchdown 150 | 3.0, 0.2, 0.2 (per 50) | 40, 50 "
+                        "| 7/100 (3-14 %); 90 touchdowns, 5 timeouts, 5 fence exits; median 1.5 m (policy after 150 episodes) |")
+    assert table[3].startswith("| g/a4-s0 | 4 | 0 | 0.0 | no | 3 | 0 |") and table[3].endswith("| not flown (unfinished) |")
