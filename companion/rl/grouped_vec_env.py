@@ -30,9 +30,16 @@ from companion.errors import ConfigError
 
 
 def _serve(remote: Connection, parent_remote: Connection, factories: CloudpickleWrapper) -> None:
-    """A worker: builds its group of envs, then answers the parent's commands until "close"."""
+    """A worker: builds its group of envs and says whether it could (None, or the exception),
+    then answers the parent's commands until "close"."""
     parent_remote.close()
-    group = DummyVecEnv(factories.var)
+    try:
+        group = DummyVecEnv(factories.var)
+    except Exception as exc:  # noqa: BLE001 - the parent raises it
+        _send_error(remote, exc)
+        remote.close()
+        return
+    remote.send(None)
     try:
         while True:
             try:
@@ -45,11 +52,20 @@ def _serve(remote: Connection, parent_remote: Connection, factories: Cloudpickle
             try:
                 answer = _answer(group, cmd, data)
             except Exception as exc:  # noqa: BLE001 - the parent raises it: the worker stays up to close
-                answer = exc
+                _send_error(remote, exc)
+                continue
             remote.send(answer)
     finally:
         group.close()
         remote.close()
+
+
+def _send_error(remote: Connection, exc: Exception) -> None:
+    """Hand an exception to the parent; one that cannot be pickled goes as its text."""
+    try:
+        remote.send(exc)
+    except Exception:  # noqa: BLE001 - e.g. an exception holding a socket
+        remote.send(RuntimeError(f"{type(exc).__name__}: {exc}"))
 
 
 def _answer(group: DummyVecEnv, cmd: str, data: Any) -> Any:
@@ -75,8 +91,9 @@ def _answer(group: DummyVecEnv, cmd: str, data: Any) -> Any:
 
 
 class GroupedSubprocVecEnv(VecEnv):
-    """``len(factories)`` envs in ``n_workers`` processes (envs split as evenly as possible, in
-    order: env ``i`` is in worker ``i // ceil(n / n_workers)``)."""
+    """``len(factories)`` envs in ``n_workers`` processes, in order, the group sizes differing by
+    at most one (7 envs in 3 workers: 3, 2, 2). If any worker cannot build its envs, every
+    worker is stopped and its exception raised here."""
 
     def __init__(self, factories: Sequence[Callable[[], gym.Env[Any, Any]]], n_workers: int,
                  start_method: str = "forkserver") -> None:
@@ -84,9 +101,13 @@ class GroupedSubprocVecEnv(VecEnv):
             raise ConfigError("a grouped vec env needs at least one env")
         if not 1 <= n_workers <= len(factories):
             raise ConfigError(f"n_workers must be between 1 and the number of envs ({len(factories)}), got {n_workers}")
-        size = -(-len(factories) // n_workers)
-        groups = [list(factories[i:i + size]) for i in range(0, len(factories), size)]
-        self._slices = [slice(i, i + len(g)) for i, g in zip(range(0, len(factories), size), groups, strict=True)]
+        base, extra = divmod(len(factories), n_workers)
+        self._slices, start = [], 0
+        for k in range(n_workers):
+            stop = start + base + (1 if k < extra else 0)
+            self._slices.append(slice(start, stop))
+            start = stop
+        groups = [list(factories[part]) for part in self._slices]
         ctx: Any = mp.get_context(start_method)  # typeshed's BaseContext lacks Process and Pipe
         self.remotes: list[Connection] = []
         self.processes: list[Any] = []
@@ -99,9 +120,24 @@ class GroupedSubprocVecEnv(VecEnv):
             self.processes.append(proc)
         self.closed = False
         self.waiting = False
+        try:
+            for remote in self.remotes:
+                self._recv(remote)  # None once the worker's envs are built
+        except BaseException:
+            self._stop_workers()
+            raise
         self.remotes[0].send(("spaces", None))
         observation_space, action_space = self._recv(self.remotes[0])
         super().__init__(len(factories), observation_space, action_space)
+
+    def _stop_workers(self) -> None:
+        for proc in self.processes:
+            proc.terminate()
+        for proc in self.processes:
+            proc.join(timeout=30)
+        for remote in self.remotes:
+            remote.close()
+        self.closed = True
 
     @staticmethod
     def _recv(remote: Connection) -> Any:

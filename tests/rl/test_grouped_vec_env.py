@@ -81,3 +81,21 @@ def test_bad_worker_counts_are_refused() -> None:
         GroupedSubprocVecEnv(_factories(2), n_workers=3)
     with pytest.raises(ConfigError, match="at least one env"):
         GroupedSubprocVecEnv([], n_workers=1)
+
+
+def _broken_env():  # noqa: ANN202 - a factory that fails as a bad config would
+    raise ConfigError("this env cannot be built")
+
+
+def test_a_worker_that_cannot_build_its_envs_stops_them_all_with_its_error() -> None:
+    with pytest.raises(ConfigError, match="cannot be built"):
+        GroupedSubprocVecEnv([*_factories(1), _broken_env], n_workers=2)
+
+
+def test_envs_are_split_in_groups_that_differ_by_at_most_one() -> None:
+    venv = GroupedSubprocVecEnv([_factories(1)[0]] * 5, n_workers=3)
+    try:
+        assert [(p.start, p.stop) for p in venv._slices] == [(0, 2), (2, 4), (4, 5)]
+        assert len(venv.processes) == 3 and venv.get_attr("action_dims") == [2] * 5
+    finally:
+        venv.close()
