@@ -3,8 +3,8 @@
 stable-baselines3's ``SubprocVecEnv`` puts one env in each process and hands every step over a
 pipe: two messages and two wake-ups of another process per env step. On this task that
 hand-over cost about as much CPU as the env step itself (docs/baselines.md, "Speed of the
-env"). Here ``n_workers`` processes each hold ``envs_per_worker`` envs in a ``DummyVecEnv`` and
-step all of them on one message, so the hand-over is paid once per group. What each env sees
+env"). Here ``n_workers`` processes each hold a group of the envs in a ``DummyVecEnv`` and step
+all of them on one message, so the hand-over is paid once per group. What each env sees
 (seeds, actions, auto-reset, ``terminal_observation``) is the ``DummyVecEnv``'s, so a grouped
 vec env gives the same observations as a ``DummyVecEnv`` of the same envs (tests/rl).
 """
