@@ -31,6 +31,19 @@ case "${1:-all}" in
         (for s in 1000 2000; do same_before "col4-bc1-s$s"; tune "col4-bc1-s$s" "$C4" --seed "$s"; done) &
         (for s in 1000 2000; do same_before "col4-nobc-s$s"; tune "col4-nobc-s$s" "$C4" --bc-weight 0 --seed "$s"; done) &
         wait ;;
+    # The other synthetic participants: a CoL@4 session each (made here if its folder is
+    # missing), then its policy fine-tuned with and without the behaviour-cloning term (seed 0),
+    # in two lanes. Only the final checkpoint, episodes.jsonl and human.csv are kept.
+    col4-participants)
+        for P in P2 P3 P4; do
+            if [ ! -f "$D/col4-$P/checkpoints/episode_003.npz" ]; then
+                nice -n 10 col fly --pilot "synthetic:$P" --condition col --episodes 4 --config configs/paper.toml \
+                    --run-dir "$D/col4-$P" > "$D/col4-$P.log" 2>&1
+            fi
+        done
+        (for P in P2 P3 P4; do tune "col4-$P-bc1" "$D/col4-$P/checkpoints/episode_003.npz"; done) &
+        (for P in P2 P3 P4; do tune "col4-$P-nobc" "$D/col4-$P/checkpoints/episode_003.npz" --bc-weight 0; done) &
+        wait ;;
     *) tune bc1 "$D/col8-P1/checkpoints/episode_007.npz"; tune col4-bc1 "$C4"
        same_before col4-logstd0; tune col4-logstd0 "$C4" --episodes 50 --log-std-init 0
        same_before col4-nobc; tune col4-nobc "$C4" --bc-weight 0 ;;
