@@ -124,17 +124,19 @@ class GroupedSubprocVecEnv(VecEnv):
             for remote in self.remotes:
                 self._recv(remote)  # None once the worker's envs are built
         except BaseException:
-            self._stop_workers()
+            self._stop_workers(wait_s=0.0)
             raise
         self.remotes[0].send(("spaces", None))
         observation_space, action_space = self._recv(self.remotes[0])
         super().__init__(len(factories), observation_space, action_space)
 
-    def _stop_workers(self) -> None:
+    def _stop_workers(self, wait_s: float) -> None:
+        """Wait up to ``wait_s`` for each worker to exit, terminate any still running."""
         for proc in self.processes:
-            proc.terminate()
-        for proc in self.processes:
-            proc.join(timeout=30)
+            proc.join(timeout=wait_s)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join(timeout=30)
         for remote in self.remotes:
             remote.close()
         self.closed = True
@@ -192,13 +194,7 @@ class GroupedSubprocVecEnv(VecEnv):
                 remote.recv()
             except (EOFError, BrokenPipeError, ConnectionResetError):
                 pass  # that worker is already gone
-        for proc in self.processes:
-            proc.join(timeout=30)
-            if proc.is_alive():
-                proc.terminate()
-        for remote in self.remotes:
-            remote.close()
-        self.closed = True
+        self._stop_workers(wait_s=30.0)
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         parts = self._local(indices)

@@ -33,15 +33,21 @@ PAPER_ENDPOINTS = {2: (500, 1.0), 3: (1000, 0.05), 4: (1000, 0.0)}
 RUN_NAME = re.compile(r"^a(?P<actions>[234])-s(?P<seed>\d+)$")
 
 
+TRAIN_LOG = "train_episodes.jsonl"
+
+
+def read_episodes(folder: Path) -> list[dict[str, Any]]:
+    """A run folder's training episodes so far (one JSON line each, written as episodes end)."""
+    return [json.loads(line) for line in (folder / TRAIN_LOG).read_text().splitlines() if line.strip()]
+
+
 def read_runs(grid: Path) -> dict[int, dict[int, list[dict[str, Any]]]]:
     """actions -> seed -> training episodes so far."""
     runs: dict[int, dict[int, list[dict[str, Any]]]] = {}
     for folder in sorted(grid.iterdir()):
         match = RUN_NAME.match(folder.name)
-        log = folder / "train_episodes.jsonl"
-        if match and log.exists():
-            episodes = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
-            runs.setdefault(int(match["actions"]), {})[int(match["seed"])] = episodes
+        if match and (folder / TRAIN_LOG).exists():
+            runs.setdefault(int(match["actions"]), {})[int(match["seed"])] = read_episodes(folder)
     return runs
 
 
@@ -95,8 +101,7 @@ def random_results(folder: Path) -> dict[str, Any]:
 
 def read_folders(folders: list[Path]) -> dict[int, list[dict[str, Any]]]:
     """Training episodes of named run folders, numbered 0, 1, ... (for an extra curve)."""
-    return {k: [json.loads(line) for line in (f / "train_episodes.jsonl").read_text().splitlines() if line.strip()]
-            for k, f in enumerate(folders)}
+    return {k: read_episodes(f) for k, f in enumerate(folders)}
 
 
 def summary(grid: Path, random_dir: Path | None, col_file: Path | None,
@@ -184,7 +189,7 @@ def run_row(folder: Path, name: str) -> str:
     """One markdown table row of a PPO run folder: its settings, training outcomes, the median
     touchdown distance per block and successes per 100 episodes, and its held-out evaluation."""
     settings = json.loads((folder / "settings.json").read_text())
-    episodes = _episodes(folder)
+    episodes = read_episodes(folder) if (folder / TRAIN_LOG).exists() else []
     outcomes: dict[str, int] = {}
     for e in episodes:
         outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1
@@ -209,11 +214,6 @@ RUNS_HEADER = ("| run | actions | seed | initial log-std | advantages normalised
 def runs_table(root: Path, names: list[str]) -> str:
     """The markdown table of these run folders (paths relative to ``root``) of docs/baselines.md."""
     return "\n".join([RUNS_HEADER, *(run_row(root / name, name) for name in names)]) + "\n"
-
-
-def _episodes(folder: Path) -> list[dict[str, Any]]:
-    path = folder / "train_episodes.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
 
 
 def main() -> None:
