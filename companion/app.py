@@ -337,6 +337,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
             control=control,
             asker=HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz) if cfg.ask.enabled else None,
+            landing=cfg.landing,
         )
         if control is not None:
             control.started(opened, learner, dataset)

@@ -22,6 +22,8 @@ from companion.link.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 ARM_RETRY_S = 1.0
+MODE_CONFIRM_S = 3.0  # HEARTBEAT comes at 1 Hz: three chances to show the new mode
+MODE_POLL_S = 0.05
 
 
 def when_ready(action: Callable[[], None], what: str, timeout_s: float, retry_s: float = ARM_RETRY_S,
@@ -61,16 +63,73 @@ def arm_when_ready(link: VehicleLink, timeout_s: float) -> None:
     when_ready(link.arm, "arm", timeout_s)
 
 
-def take_off(link: VehicleLink, dialect: Dialect, alt_m: float, arm_timeout_s: float) -> None:
+def enter_confirmed(link: VehicleLink, mode: str, confirm_s: float = MODE_CONFIRM_S,
+                    sleep: Callable[[float], None] = time.sleep,
+                    clock: Callable[[], float] = time.monotonic) -> None:
+    """Switch to ``mode`` and wait until the vehicle's HEARTBEAT says so; a vehicle that ACKs the
+    change but keeps flying another mode counts as refusing (``when_ready`` then retries)."""
+    link.set_mode(mode)
+    deadline = clock() + confirm_s
+    while True:
+        snap = link.state()
+        if snap is not None and snap.mode == mode:
+            return
+        if clock() >= deadline:
+            shown = snap.mode if snap is not None else "nothing"
+            raise CommandRejected(f"set_mode({mode!r})", "NOT_CONFIRMED",
+                                  f"accepted, but the HEARTBEAT still says {shown} after {confirm_s:g} s",
+                                  reasons=(f"mode is {shown}, not {mode}",))
+        sleep(MODE_POLL_S)
+
+
+def arm_in_mode(link: VehicleLink, mode: str, confirm: Callable[[], None]) -> None:
+    """Arm, making sure first that the vehicle is in ``mode`` (``confirm`` enters it otherwise)."""
+    snap = link.state()
+    if snap is None or snap.mode != mode:
+        confirm()
+    link.arm()
+
+
+def take_off(link: VehicleLink, dialect: Dialect, alt_m: float, arm_timeout_s: float,
+             sleep: Callable[[float], None] = time.sleep,
+             clock: Callable[[], float] = time.monotonic) -> None:
     """From the ground to climbing towards ``alt_m``: the dialect's steps (ArduPilot: GUIDED,
-    arm, NAV_TAKEOFF; PX4: arm, NAV_TAKEOFF). The caller waits for the altitude."""
-    for step in dialect.takeoff_steps(alt_m):
-        if step.kind == "mode":
-            when_ready(functools.partial(link.set_mode, step.mode), f"enter {step.mode}", arm_timeout_s)
-        elif step.kind == "arm":
-            arm_when_ready(link, arm_timeout_s)
-        else:
-            link.takeoff(step.alt_m)
+    confirmed by HEARTBEAT, arm, NAV_TAKEOFF; PX4: AUTO.LOITER, arm, NAV_TAKEOFF). The caller
+    waits for the altitude. A take-off refused because the vehicle was armed in another mode is
+    recovered: the mode is entered again (armed, on the ground) and the take-off asked once more."""
+    mode = dialect.takeoff_mode
+    if mode is None or not dialect.confirm_takeoff_mode:
+        for step in dialect.takeoff_steps(alt_m):
+            if step.kind == "mode":
+                when_ready(functools.partial(link.set_mode, step.mode), f"enter {step.mode}", arm_timeout_s)
+            elif step.kind == "arm":
+                arm_when_ready(link, arm_timeout_s)
+            else:
+                link.takeoff(step.alt_m)
+        _ask_home(link)
+        return
+    confirm = functools.partial(enter_confirmed, link, mode, sleep=sleep, clock=clock)
+    when_ready(confirm, f"enter {mode}", arm_timeout_s, sleep=sleep, clock=clock)
+    when_ready(functools.partial(arm_in_mode, link, mode, confirm), f"arm in {mode}", arm_timeout_s,
+               sleep=sleep, clock=clock)
+    _ask_home(link)
+    try:
+        link.takeoff(alt_m)
+    except CommandRejected as exc:
+        snap = link.state()
+        if exc.origin != "vehicle" or snap is None or snap.mode == mode:
+            raise
+        log.warning("take-off refused in %s (%s): entering %s again, armed, and asking once more", snap.mode, exc, mode)
+        when_ready(confirm, f"enter {mode}", arm_timeout_s, sleep=sleep, clock=clock)
+        link.takeoff(alt_m)
+
+
+def _ask_home(link: VehicleLink) -> None:
+    """Arming sets home: ask for the new HOME_POSITION now rather than at its next 2 s beat."""
+    try:
+        link.request_message("HOME_POSITION", timeout_s=1.0)
+    except ColError as exc:  # heights then use the last home heard; nothing to stop for
+        log.info("HOME_POSITION not sent on request: %s", exc)
 
 
 def leave_safe(link: VehicleLink, dialect: Dialect, policy: EndOfRun) -> str:

@@ -22,11 +22,13 @@ from typing import Any, Protocol
 import numpy as np
 
 from companion.commands import CommandMapper, JoystickCommand
-from companion.config import SessionConfig
+from companion.config import LandingConfig, SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
+from companion.control.home_frame import HomeFrame
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
+from companion.control.touchdown import TouchdownAssist, touchdown_need
 from companion.errors import ColError, CommandRejected, LinkError, LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
@@ -165,6 +167,8 @@ class EpisodeParts:
     on_ask_event: Callable[[AskEvent], None] | None = None
     """Told of every request, answer, hand-back (e.g. a console); the session itself logs
     them, sends them as STATUSTEXT and tells the human input."""
+    landing: LandingConfig | None = None
+    """Touchdowns the vehicle's land detector recognises (None: send what is asked, as is)."""
 
 
 class EpisodeRunner:
@@ -184,6 +188,10 @@ class EpisodeRunner:
         self._hold_ned: tuple[float, float, float, float] | None = None
         self._landing = False
         self._ask_summary: AskSummary | None = None
+        self._touchdown: TouchdownAssist | None = None
+        self.home = HomeFrame()
+        """Home for heights and distances (companion/control/home_frame.py), kept over the run."""
+        self._warned_home = False
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
         if parts.asker is not None:
@@ -198,6 +206,34 @@ class EpisodeRunner:
                 raise LinkError("no HEARTBEAT from the vehicle yet: cannot tell its autopilot")
             self._dialect = dialect_for(snap.autopilot)
         return self._dialect
+
+    @property
+    def touchdown(self) -> TouchdownAssist | None:
+        """The touchdown assist for this vehicle, from its own land-detector parameters (asked
+        once, at the first episode); None when ``landing`` is not given or the assist is off."""
+        landing = self.p.landing
+        if landing is None or not landing.touchdown_assist:
+            return None
+        if self._touchdown is None:
+            need = touchdown_need(self.dialect_autopilot(), self.p.link.read_param, landing.min_descent_m_s)
+            self._touchdown = TouchdownAssist(need, landing, self.period_s, -self.p.cfg.pad_ned_m[2], self.home)
+            log.info("touchdown: %s%s", need.why,
+                     f"; standing on a surface, the companion asks {self._touchdown.wanted_m_s:.3f} m/s"
+                     if self._touchdown.active else "; nothing to add")
+        return self._touchdown
+
+    def _reset_touchdown(self) -> None:
+        try:
+            assist = self.touchdown
+        except ColError as exc:  # no heartbeat yet: the episode's start reports it
+            log.debug("touchdown assist not ready: %s", exc)
+            return
+        if assist is not None:
+            assist.reset()
+
+    def dialect_autopilot(self) -> str:
+        snap = self.p.link.state()
+        return snap.autopilot if snap is not None else ""
 
     def leave_safe(self) -> str:
         """The configured end-of-run state (land or hold), after a run or a failed episode."""
@@ -214,11 +250,15 @@ class EpisodeRunner:
                 return None
             if snap is not None:
                 self._frame_ms = int(snap.frame_time_boot_ms or snap.time_boot_ms)
+                self.home.update(snap)
             return snap
         if self._ticker is None:
             self._ticker = Ticker(self.p.cfg.control_rate_hz)
         self._ticker.wait()
-        return link.state() if link.link_alive() else None
+        snap = link.state() if link.link_alive() else None
+        if snap is not None:
+            self.home.update(snap)
+        return snap
 
     def _send(self, sp: VelocitySetpoint) -> None:
         echo = self._frame_ms if self.p.lockstep and self._frame_ms >= 0 else None
@@ -330,21 +370,34 @@ class EpisodeRunner:
             take_off(self.p.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
             for _ in range(int(30 * cfg.control_rate_hz)):
                 snap = self._next_snapshot()
-                if snap is not None and snap.in_air and -snap.position_ned_m[2] > 0.8 * cfg.takeoff_alt_m:
+                if snap is not None and snap.in_air and self.home.height(snap) > 0.8 * cfg.takeoff_alt_m:
                     break
+        if snap is not None:
+            self._check_home(snap)
         return self._goto(start, snap)
 
+    def _check_home(self, snap: VehicleSnapshot) -> None:
+        if self.home.origin is None and not self._warned_home:
+            self._warned_home = True
+            log.warning("the vehicle sent no HOME_POSITION and was not seen standing: heights are taken "
+                        "from local z = 0, which on PX4 is where the estimator started, not the ground")
+        elif not self._warned_home:
+            self._warned_home = True
+            log.info("home: %s, at %s in the vehicle's frame", self.home.source,
+                     tuple(round(v, 3) for v in self.home.origin or ()))
+
     def _goto(self, target: np.ndarray, snap: VehicleSnapshot | None) -> VehicleSnapshot:
+        """Fly to ``target`` (relative to home) with position setpoints in the vehicle's frame."""
         yaw = 0.0
         for i in range(int(60 * self.p.cfg.control_rate_hz)):
             if snap is None:
                 raise LinkError("lost the vehicle while flying to the start point")
             echo = self._frame_ms if self.p.lockstep else None
-            north, east, down = (float(v) for v in target)
+            north, east, down = self.home.to_vehicle(target)
             self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
             if i % 10 == 2 and not self.dialect.is_offboard(snap.mode):  # again if a failsafe took it
                 self.p.link.set_mode(self.dialect.offboard_mode)
-            err = float(np.linalg.norm(np.asarray(snap.position_ned_m) - target))
+            err = float(np.linalg.norm(np.asarray(self.home.relative(snap)) - target))
             speed = float(np.linalg.norm(snap.velocity_ned_m_s))
             if i > 3 and err < self.p.cfg.start_tolerance_m and speed < 0.3:
                 return snap
@@ -370,6 +423,7 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
+        self._reset_touchdown()
         self._begin_asking(episode)
         try:
             first, notes = self._start(seed)
@@ -484,7 +538,7 @@ class EpisodeRunner:
                     outcome = "link_lost"
                     break
                 snap = self._ensure_offboard(snap)
-            if step > 0 and snap.landed_state == "ON_GROUND":
+            if step > 0 and self._touched_down(snap):
                 outcome = "touchdown"
                 break
             ended = self.p.control.end_requested() if self.p.control is not None else None
@@ -501,6 +555,18 @@ class EpisodeRunner:
             snap = self._next_snapshot()
         return outcome, version, steps, snap
 
+    def _touched_down(self, snap: VehicleSnapshot) -> bool:
+        """The vehicle's landed state; for a vehicle that reports none, the companion's evidence."""
+        if snap.landed_state == "ON_GROUND":
+            return True
+        assist = self._touchdown
+        if snap.landed_state == "UNDEFINED" and assist is not None and assist.standing_long_enough():
+            log.warning("touchdown judged by the companion: the vehicle reports no landed state "
+                        "(EXTENDED_SYS_STATE) and has stood on a surface, asked down, for %.1f s",
+                        assist.cfg.evidence_touchdown_s)
+            return True
+        return False
+
     # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
     def begin(self, seed: int | None) -> VehicleSnapshot:
         """Start an episode as :meth:`run` does (reset or fly to the start, then OFFBOARD) and
@@ -508,6 +574,7 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
+        self._reset_touchdown()
         return self._start(seed)[0]
 
     def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
@@ -523,7 +590,7 @@ class EpisodeRunner:
                       t0_ms: int) -> tuple[str | None, int | None]:
         t_start = self._tick_start_s = time.perf_counter()
         try:
-            obs = self.p.observer.observe(snap, self.p.lockstep)
+            obs = self.p.observer.observe(snap, self.p.lockstep, self.home.relative(snap))
             vector = obs.to_vector()
         except ValueError as exc:  # non-finite telemetry: hold this step
             log.warning("step %d: unusable telemetry (%s); holding", step, exc)
@@ -551,6 +618,8 @@ class EpisodeRunner:
                 self._hold_ned = None
                 self.p.limiter.reset()
             sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
+            if self._touchdown is not None:
+                sp = self._touchdown.apply(sp, snap)
             self._send(sp)
             self.trace.append((step, score, decision.source))
         self.step_latencies_s.append(time.perf_counter() - t_start)
@@ -589,8 +658,11 @@ class EpisodeRunner:
                 success = False
         elif snap is not None and outcome == "touchdown":
             pad = self.p.cfg.pad_ned_m
-            distance = math.hypot(snap.position_ned_m[0] - pad[0], snap.position_ned_m[1] - pad[1])
-            notes.append("touchdown distance estimated from the vehicle's position")
+            north, east, _ = self.home.relative(snap)
+            distance = math.hypot(north - pad[0], east - pad[1])
+            notes.append("touchdown distance estimated from the vehicle's position relative to home"
+                         if self.home.origin is not None else
+                         "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)")
         durations = summary.durations_s(self.period_s)
         sim_s = ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0
         return EpisodeRecord(

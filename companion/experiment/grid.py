@@ -20,7 +20,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from colcommon.configio import Section, build, read_toml, section
-from companion.config import AskConfig, CompanionConfig, load_companion_config
+from companion.config import AskConfig, CompanionConfig, LandingConfig, load_companion_config
 from companion.errors import ConfigError
 from companion.inputs.synthetic import PROFILES
 
@@ -210,6 +210,10 @@ before them (one network; no signing; the run's own SITL is never left by end_of
 SITL arms at once)."""
 
 
+EXPERIMENT_LANDING = LandingConfig(touchdown_assist=False)
+"""The landing settings of an experiment file that names none (companion.config.EXPERIMENT_TASK)."""
+
+
 def _fingerprinted(companion: CompanionConfig) -> dict[str, object]:
     """The companion's settings, leaving out those added after results were committed while
     they are at their defaults (ADDED_LATER, asking for help): those results keep their
@@ -220,6 +224,8 @@ def _fingerprinted(companion: CompanionConfig) -> dict[str, object]:
             del data[table][key]
     if data.get("ask") == AskConfig().model_dump(mode="json"):
         del data["ask"]
+    if data.get("landing") == EXPERIMENT_LANDING.model_dump(mode="json"):
+        del data["landing"]  # the experiments' task as it was designed (companion.config.EXPERIMENT_TASK)
     return data
 
 

@@ -41,6 +41,10 @@ class VehicleSnapshot:
     heartbeat_s: float  # monotonic time of the newest HEARTBEAT
     position_valid: bool = False  # a position message has arrived
     attitude_valid: bool = False  # an attitude message has arrived
+    home_ned_m: Vec3 | None = None
+    """Home in the vehicle's local frame (HOME_POSITION x, y, z; None until one arrives). On
+    PX4 the local origin is where the estimator started, not the ground: heights are taken
+    from here (companion/control/home_frame.py), never from z = 0."""
 
     @property
     def in_air(self) -> bool:
@@ -193,6 +197,11 @@ class VehicleLink(ABC):
 
     @abstractmethod
     def stats(self) -> LinkStats: ...
+
+    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+        """One of the vehicle's parameters by name (PARAM_REQUEST_READ); None when the vehicle
+        does not answer within ``timeout_s`` or this backend cannot ask."""
+        return None
 
     def send_statustext(self, text: str, severity: int = 4) -> bool:
         """Tell the ground stations (STATUSTEXT, at most 50 characters; ``severity`` is

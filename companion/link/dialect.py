@@ -48,6 +48,9 @@ class Dialect:
     lockstep_marker: str | None  # the frame marker of lockstep (None: no lockstep)
     takeoff_hint: str  # what to check when a take-off is refused
     arm_hint: str
+    confirm_takeoff_mode: bool = False
+    """Arm only once the HEARTBEAT shows ``takeoff_mode`` (ArduCopter arms in any mode it is in,
+    but takes off only from GUIDED: an ACKed mode change can still be undone while it boots)."""
     body_frame: int = MAV_FRAME_BODY_NED  # velocity (forward, right, down) rotated by heading
     body_type_mask: int = BODY_VELOCITY_TYPE_MASK
     position_frame: int = MAV_FRAME_LOCAL_NED
@@ -103,6 +106,7 @@ ARDUPILOT = Dialect(
     loss_reaction="ArduCopter stays in GUIDED and stops (zero velocity)",
     lockstep_marker=None,
     takeoff_hint="ArduCopter takes off only when armed in GUIDED (set GUIDED before arming)",
+    confirm_takeoff_mode=True,
     arm_hint="ArduCopter refuses to arm until its pre-arm checks pass (the EKF settles for "
     "about 40 s after boot); read its 'PreArm:' messages",
 )

@@ -40,8 +40,9 @@ UINT32_MAX = 2**32 - 1
 NAN = float("nan")  # MAVLink's "not set / use current" in command parameters
 # streams a PX4-like vehicle sends by default that no part of the companion reads (HEARTBEAT,
 # ATTITUDE, LOCAL_POSITION_NED, EXTENDED_SYS_STATE and SYSTEM_TIME are what it folds)
+HOME_POSITION_RATE_HZ = 0.5  # home moves only when the vehicle is armed again; heights are taken from it
 UNREAD_STREAMS = ("ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "VFR_HUD", "SYS_STATUS",
-                  "BATTERY_STATUS", "HOME_POSITION")
+                  "BATTERY_STATUS")
 
 
 def result_name(result: int) -> str:
@@ -250,7 +251,8 @@ class MavlinkLink(VehicleLink):
     def default_rates_hz(self) -> dict[str, float]:
         """What the companion needs: fast attitude and position, slower landed state."""
         fast, slow = self.cfg.telemetry_rate_hz, self.cfg.status_rate_hz
-        rates = {"ATTITUDE": fast, "LOCAL_POSITION_NED": fast, "EXTENDED_SYS_STATE": slow}
+        rates = {"ATTITUDE": fast, "LOCAL_POSITION_NED": fast, "EXTENDED_SYS_STATE": slow,
+                 "HOME_POSITION": HOME_POSITION_RATE_HZ if slow > 0 else 0.0}
         rates = {name: hz for name, hz in rates.items() if hz > 0}
         if self.cfg.stop_unread_streams:  # 0 Hz: SET_MESSAGE_INTERVAL -1, the stream stops
             rates.update(dict.fromkeys(UNREAD_STREAMS, 0.0))
@@ -313,6 +315,24 @@ class MavlinkLink(VehicleLink):
                 break
             found.append(str(msg.text).rstrip("\x00").strip())
         return tuple(dict.fromkeys(t for t in found if t))
+
+    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+        """PARAM_REQUEST_READ by name, asked again every ``command_timeout_s`` until a
+        PARAM_VALUE of that name comes (None after ``timeout_s``)."""
+        self._require_alive()
+        tsys, tcomp = self._target()
+        waiter = self._io.waiters.add(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
+        deadline = self._clock() + timeout_s
+        try:
+            while (remaining := deadline - self._clock()) > 0:
+                self._io.send(self._io.mav.param_request_read_encode(tsys, tcomp, name.encode(), -1))
+                reply = waiter.get(min(self.cfg.command_timeout_s, remaining))
+                if reply is not None and math.isfinite(reply.param_value):
+                    return float(reply.param_value)
+        finally:
+            self._io.waiters.remove(waiter)
+        log.info("the vehicle did not answer PARAM_REQUEST_READ(%s) within %.1f s", name, timeout_s)
+        return None
 
     def _set_param(self, name: str, value: float) -> None:
         """PARAM_SET, waiting briefly for the PARAM_VALUE echo (logged if it never comes)."""

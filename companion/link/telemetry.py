@@ -97,6 +97,10 @@ def _extended_sys_state(msg: Any, now_s: float) -> dict[str, Any]:
     return {"landed_state": LANDED_STATES[state] if state < len(LANDED_STATES) else "UNDEFINED"}
 
 
+def _home_position(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"home_ned_m": _finite(msg.x, msg.y, msg.z)}
+
+
 def _system_time(msg: Any, now_s: float) -> dict[str, Any]:
     return {"time_boot_ms": int(msg.time_boot_ms)}
 
@@ -116,6 +120,7 @@ HANDLERS = {
     "ATTITUDE": _attitude,
     "EXTENDED_SYS_STATE": _extended_sys_state,
     "SYSTEM_TIME": _system_time,
+    "HOME_POSITION": _home_position,
 }
 
 

@@ -225,7 +225,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         """"touchdown", "fence" (left the geofence: a failure) or None (still flying)."""
         if snap.landed_state == "ON_GROUND":
             return "touchdown"
-        if not self._runner.p.fence.check(snap.position_ned_m).inside:
+        if not self._runner.p.fence.check(self._runner.home.relative(snap)).inside:
             return "fence"
         return None
 

@@ -78,12 +78,14 @@ class Observer:
             self._last_frame_number, self._repeats = frame.frame_number, 0
         return frame
 
-    def observe(self, snapshot: VehicleSnapshot, lockstep: bool) -> Observation:
-        """The observation for ``snapshot``; ValueError if its telemetry is not finite."""
+    def observe(self, snapshot: VehicleSnapshot, lockstep: bool,
+                position_ned_m: tuple[float, float, float] | None = None) -> Observation:
+        """The observation for ``snapshot``; ValueError if its telemetry is not finite.
+        ``position_ned_m``: the position relative to home (default: the snapshot's, as sent)."""
         stamp = snapshot.frame_time_boot_ms if lockstep else None
         pad = self.detect(stamp)
         return Observation(
-            position_ned_m=snapshot.position_ned_m,
+            position_ned_m=snapshot.position_ned_m if position_ned_m is None else position_ned_m,
             attitude_rad=snapshot.attitude_rad,
             velocity_ned_m_s=snapshot.velocity_ned_m_s,
             rates_frd_rad_s=snapshot.rates_frd_rad_s,

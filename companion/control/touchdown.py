@@ -1,0 +1,138 @@
+"""Touchdowns that the vehicle's own land detector recognises, whoever flies.
+
+Real PX4 (MulticopterLandDetector) registers ground contact in velocity-controlled flight only
+while the commanded descent is at least 1.1 x ``LNDMC_Z_VEL_MAX`` (0.25 m/s by default). The
+expert's slow final descent (0.263 m/s) and the policies that learned it sat on the ground,
+armed, until the episode timed out. ArduCopter's detector needs no descent rate: it waits for
+its throttle to reach the lower limit with the vehicle still, which any asked descent gives.
+
+The companion does not change what a person or a policy asks for in the air (the dataset and
+the policy stay as they are): :class:`TouchdownAssist` sits after the limiter and acts only once
+the evidence says the vehicle stands on a surface: asked down, not moving vertically, for
+``assist_after_s``, no higher than a little above the pad. Then it asks down at what the
+detector needs, times a margin. Touchdown itself is the vehicle's landed state
+(EXTENDED_SYS_STATE ON_GROUND); only a vehicle that never reports one is judged by this
+evidence (``evidence_touchdown_s`` of it).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from companion.config import LandingConfig
+from companion.control.home_frame import HomeFrame
+from companion.link.base import VehicleSnapshot
+from companion.link.setpoints import VelocitySetpoint
+
+log = logging.getLogger(__name__)
+PX4_CONTACT_FACTOR = 1.1  # PX4: ground contact needs the commanded descent >= 1.1 x LNDMC_Z_VEL_MAX
+PX4_LNDMC_Z_VEL_MAX_DEFAULT = 0.25
+RELEASE_CLIMB_M = 0.5  # engaged, and then this much higher: it was not standing after all
+ASKED_DOWN_M_S = 0.02  # a setpoint this slow downwards still counts as someone asking to descend
+
+
+@dataclass(frozen=True)
+class TouchdownNeed:
+    """The slowest commanded descent at which the vehicle's land detector fires (0: any)."""
+
+    min_descent_m_s: float
+    why: str
+
+
+def touchdown_need(autopilot: str, read_param: Callable[[str], float | None],
+                   configured_m_s: float = 0.0) -> TouchdownNeed:
+    """What this autopilot's land detector needs, from its own parameters where it has them.
+
+    ``read_param`` asks the vehicle (PARAM protocol) and returns None without an answer;
+    ``configured_m_s`` > 0 overrides what the vehicle says.
+    """
+    if configured_m_s > 0:
+        return TouchdownNeed(configured_m_s, f"[companion.landing] min_descent_m_s = {configured_m_s:g}")
+    if autopilot == "PX4":
+        value = read_param("LNDMC_Z_VEL_MAX")
+        if value is None or not math.isfinite(value) or value <= 0:
+            value, said = PX4_LNDMC_Z_VEL_MAX_DEFAULT, f"PX4's default LNDMC_Z_VEL_MAX {PX4_LNDMC_Z_VEL_MAX_DEFAULT:g} (the vehicle did not say)"
+        else:
+            said = f"the vehicle's LNDMC_Z_VEL_MAX {value:g}"
+        need = PX4_CONTACT_FACTOR * value
+        return TouchdownNeed(need, f"PX4 registers ground contact only at a descent >= 1.1 x {said} m/s = {need:.3f} m/s")
+    if autopilot == "ARDUPILOTMEGA":
+        land_speed = read_param("LAND_SPEED")  # cm/s: LAND mode's final descent, for the log
+        said = f" (its LAND mode descends at LAND_SPEED {land_speed / 100:.2f} m/s)" if land_speed else ""
+        return TouchdownNeed(0.0, "ArduCopter's land detector needs the throttle at its lower limit, "
+                                  f"not a descent rate{said}")
+    return TouchdownNeed(0.0, f"no known descent rule for autopilot {autopilot}")
+
+
+class TouchdownAssist:
+    """After the limiter: a too-slow descent on a surface becomes the descent the detector needs.
+
+    "Standing on a surface": over the last ``assist_after_s`` the vehicle was asked down at every
+    step but came down less than half of what it was asked (PX4 SIH's vertical speed on the
+    ground is noisy, +-0.15 m/s, so a window of heights judges, not one speed), no higher than
+    ``assist_height_m`` above the pad's height above home. Once standing, the assist holds while
+    the vehicle is asked down and does not climb away; asked anything else, it lets go.
+    """
+
+    def __init__(self, need: TouchdownNeed, cfg: LandingConfig, period_s: float, pad_height_m: float,
+                 home: HomeFrame) -> None:
+        self.need, self.cfg, self.home, self.period_s = need, cfg, home, period_s
+        self.wanted_m_s = need.min_descent_m_s * cfg.descent_margin
+        self.window_steps = max(2, math.ceil(cfg.assist_after_s / period_s - 1e-9))
+        self.evidence_steps = max(1, math.ceil(cfg.evidence_touchdown_s / period_s - 1e-9))
+        self.below_height_m = max(0.0, pad_height_m) + cfg.assist_height_m
+        self.engaged_steps_total = 0
+        self.reset()
+
+    @property
+    def active(self) -> bool:
+        """Whether this vehicle needs it at all (a detector with a descent rule, assist on)."""
+        return self.cfg.touchdown_assist and self.wanted_m_s > 0
+
+    def reset(self) -> None:
+        self._window: deque[tuple[float, float]] = deque(maxlen=self.window_steps)  # (down m, asked m/s)
+        self._engaged_at_m: float | None = None
+        self._engaged_steps = 0
+
+    @property
+    def engaged(self) -> bool:
+        return self._engaged_at_m is not None
+
+    def standing_long_enough(self) -> bool:
+        """The companion's own evidence of a touchdown (for vehicles with no landed state)."""
+        return self.engaged and self._engaged_steps >= self.evidence_steps
+
+    def _standing(self) -> bool:
+        if len(self._window) < self.window_steps:
+            return False
+        came_down_m = self._window[-1][0] - self._window[0][0]
+        asked_m = sum(asked for _, asked in list(self._window)[1:]) * self.period_s
+        return came_down_m < 0.5 * asked_m
+
+    def apply(self, setpoint: VelocitySetpoint, snap: VehicleSnapshot) -> VelocitySetpoint:
+        """The setpoint to send this step, given the newest telemetry."""
+        if not self.active:
+            return setpoint
+        height = self.home.height(snap)
+        if setpoint.down_m_s <= ASKED_DOWN_M_S or height > self.below_height_m:
+            self.reset()
+            return setpoint
+        self._window.append((-height, setpoint.down_m_s))
+        if self._engaged_at_m is not None and height > self._engaged_at_m + RELEASE_CLIMB_M:
+            self.reset()  # it climbed away: it was not standing after all
+            return setpoint
+        if self._engaged_at_m is None:
+            if not self._standing():
+                return setpoint
+            self._engaged_at_m = height
+            log.info("standing on a surface at %.2f m above home, asked down at %.3f m/s: asking %.3f m/s "
+                     "so the land detector fires (%s)", height, setpoint.down_m_s, self.wanted_m_s, self.need.why)
+        self._engaged_steps += 1
+        self.engaged_steps_total += 1
+        if setpoint.down_m_s >= self.wanted_m_s:
+            return setpoint
+        return VelocitySetpoint(setpoint.forward_m_s, setpoint.right_m_s, self.wanted_m_s, setpoint.yaw_rate_rad_s)
