@@ -1,0 +1,168 @@
+"""The touchdown assist, the home frame, and ArduCopter's confirmed GUIDED before arming:
+pure logic on snapshots and in-memory links, no sockets."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from companion.config import LandingConfig
+from companion.control.home_frame import HomeFrame
+from companion.control.sequences import take_off
+from companion.control.touchdown import TouchdownAssist, TouchdownNeed, touchdown_need
+from companion.errors import CommandRejected
+from companion.link.base import VehicleSnapshot
+from companion.link.dialect import ARDUPILOT
+from companion.link.setpoints import VelocitySetpoint
+from tests.control.test_sequences import DialectLink
+
+PERIOD_S = 1 / 10.5
+
+
+def snap(down_m: float = 0.0, vz: float = 0.0, landed: str = "IN_AIR", armed: bool = True,
+         home_down: float | None = None, autopilot: str = "PX4") -> VehicleSnapshot:
+    return VehicleSnapshot(
+        received_s=0.0, time_boot_ms=0, frame_time_boot_ms=None, system_id=1, autopilot=autopilot, armed=armed,
+        mode="OFFBOARD", landed_state=landed, position_ned_m=(1.0, 2.0, down_m), velocity_ned_m_s=(0.0, 0.0, vz),
+        attitude_rad=(0.0, 0.0, 0.0), rates_frd_rad_s=(0.0, 0.0, 0.0), heartbeat_s=0.0, position_valid=True,
+        home_ned_m=None if home_down is None else (0.0, 0.0, home_down),
+    )
+
+
+def test_px4_needs_what_its_land_detector_parameter_says() -> None:
+    need = touchdown_need("PX4", {"LNDMC_Z_VEL_MAX": 0.3}.get)
+    assert need.min_descent_m_s == pytest.approx(0.33)
+    assert "LNDMC_Z_VEL_MAX 0.3" in need.why
+    assert touchdown_need("PX4", lambda name: None).min_descent_m_s == pytest.approx(0.275)  # PX4's default
+    assert touchdown_need("ARDUPILOTMEGA", {"LAND_SPEED": 50.0}.get).min_descent_m_s == 0.0
+    assert touchdown_need("PX4", lambda name: 0.3, configured_m_s=0.5).min_descent_m_s == 0.5
+
+
+def _assist(home: HomeFrame | None = None, **cfg: object) -> TouchdownAssist:
+    need = TouchdownNeed(0.275, "PX4 test")
+    return TouchdownAssist(need, LandingConfig(**cfg), PERIOD_S, pad_height_m=1.5, home=home or HomeFrame())
+
+
+SLOW = VelocitySetpoint(0.1, 0.0, 0.263, 0.0)
+
+
+def test_standing_on_the_ground_while_asked_down_slowly_asks_what_px4_needs() -> None:
+    assist = _assist()
+    sent = [assist.apply(SLOW, snap(down_m=0.0)) for _ in range(15)]
+    window = assist.window_steps
+    assert all(sp == SLOW for sp in sent[: window - 1])  # not yet: a second of evidence first
+    assert all(sp.down_m_s == pytest.approx(0.275 * 1.2) for sp in sent[window - 1:])
+    assert sent[-1].forward_m_s == SLOW.forward_m_s  # only the descent changes
+
+
+def test_a_vehicle_descending_as_asked_is_left_alone() -> None:
+    assist = _assist()
+    down = -3.0
+    for _ in range(40):
+        down += SLOW.down_m_s * PERIOD_S
+        assert assist.apply(SLOW, snap(down_m=down, vz=0.263)) == SLOW
+    assert not assist.engaged
+
+
+def test_the_assist_lets_go_when_the_pilot_stops_asking_down_and_acts_only_low() -> None:
+    assist = _assist()
+    for _ in range(15):
+        assist.apply(SLOW, snap(down_m=0.0))
+    assert assist.engaged
+    hover = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
+    assert assist.apply(hover, snap(down_m=0.0)) == hover and not assist.engaged
+    high = _assist()  # standing still high above the pad (a stall in the air): not a surface
+    assert all(high.apply(SLOW, snap(down_m=-5.0)) == SLOW for _ in range(30))
+
+
+def test_the_assist_is_off_where_the_detector_needs_no_descent_or_when_switched_off() -> None:
+    off = _assist(touchdown_assist=False)
+    ardu = TouchdownAssist(TouchdownNeed(0.0, "ArduCopter"), LandingConfig(), PERIOD_S, 1.5, HomeFrame())
+    for assist in (off, ardu):
+        assert not assist.active
+        assert all(assist.apply(SLOW, snap(down_m=0.0)) == SLOW for _ in range(30))
+
+
+def test_evidence_of_touchdown_needs_evidence_touchdown_s_of_standing() -> None:
+    assist = _assist(evidence_touchdown_s=1.0)
+    results = [(assist.apply(SLOW, snap()), assist.standing_long_enough())[1] for _ in range(40)]
+    first = results.index(True)
+    assert first == assist.window_steps - 1 + assist.evidence_steps - 1
+
+
+def test_home_frame_without_home_or_standing_changes_nothing() -> None:
+    home = HomeFrame()
+    s = snap(down_m=-3.25)
+    home.update(s)
+    assert home.origin is None
+    assert home.relative(s) is s.position_ned_m  # the very tuple: bit-identical observations
+    assert home.to_vehicle((1.0, 2.0, -3.0)) == (1.0, 2.0, -3.0)
+
+
+def test_home_frame_takes_the_ground_it_stood_on_over_a_jumpy_home_position() -> None:
+    home = HomeFrame()
+    for z in (-1.5, -0.5, 0.3, -0.9, -0.6):  # PX4 SIH's HOME_POSITION z, message by message
+        home.update(snap(down_m=-4.0, home_down=z))
+    assert home.origin == (0.0, 0.0, -0.6)  # their median
+    for _ in range(10):
+        home.update(snap(down_m=-0.5, landed="ON_GROUND", armed=False, home_down=-0.6))
+    assert home.origin == (0.0, 0.0, -0.5)
+    assert home.height(snap(down_m=-3.0)) == pytest.approx(2.5)
+    assert home.to_vehicle((0.0, 0.0, -2.0)) == (0.0, 0.0, -2.5)
+    home.update(snap(down_m=-3.0))  # a flight
+    # standing disarmed on the pad's roof, 1.5 m up: a raised surface, the ground stays
+    for _ in range(10):
+        home.update(snap(down_m=-2.0, landed="ON_GROUND", armed=False))
+    assert home.origin == (0.0, 0.0, -0.5)
+    home.update(snap(down_m=-3.0))
+    for _ in range(10):  # back on the ground, which has drifted by 0.4 m: the new ground level
+        home.update(snap(down_m=-0.1, landed="ON_GROUND", armed=False))
+    assert home.origin == (0.0, 0.0, -0.1)
+
+
+class LaggingGuided(DialectLink):
+    """ArduCopter that ACKs GUIDED while its EKF settles but stays in STABILIZE a while."""
+
+    def __init__(self, ignored_mode_changes: int, refuse_takeoff_once: bool = False) -> None:
+        super().__init__(ARDUPILOT, landed="ON_GROUND")
+        self.armed = False
+        self.mode = "STABILIZE"
+        self.ignored = ignored_mode_changes
+        self.refuse_takeoff_once = refuse_takeoff_once
+
+    def set_mode(self, name: str) -> None:
+        self.calls.append(f"mode {name}")
+        if self.ignored > 0:
+            self.ignored -= 1
+            return
+        self.mode = name
+
+    def takeoff(self, alt_m: float) -> None:
+        if self.refuse_takeoff_once:
+            self.refuse_takeoff_once = False
+            self.mode = "STABILIZE"  # as if the mode had reverted
+            self.calls.append("takeoff refused")
+            raise CommandRejected("takeoff", "FAILED")
+        super().takeoff(alt_m)
+
+
+def test_arducopter_arms_only_once_guided_shows_in_the_heartbeat() -> None:
+    link = LaggingGuided(ignored_mode_changes=2)
+    clock = [0.0]
+    take_off(link, ARDUPILOT, 2.5, arm_timeout_s=60.0, sleep=lambda s: clock.__setitem__(0, clock[0] + s),
+             clock=lambda: clock[0])
+    assert link.calls == ["mode GUIDED", "mode GUIDED", "mode GUIDED", "arm", "takeoff 2.5"]
+
+
+def test_a_takeoff_refused_outside_guided_enters_guided_again_and_retries() -> None:
+    link = LaggingGuided(ignored_mode_changes=0, refuse_takeoff_once=True)
+    clock = [0.0]
+    take_off(link, ARDUPILOT, 2.5, arm_timeout_s=60.0, sleep=lambda s: clock.__setitem__(0, clock[0] + s),
+             clock=lambda: clock[0])
+    assert link.calls == ["mode GUIDED", "arm", "takeoff refused", "mode GUIDED", "takeoff 2.5"]
+
+
+def test_a_snapshot_keeps_home_through_other_messages() -> None:
+    s = snap(home_down=-0.7)
+    assert replace(s, armed=False).home_ned_m == (0.0, 0.0, -0.7)
