@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
@@ -89,6 +89,18 @@ class AutopilotConfig(Section):
     hover_throttle: float = Field(0.415, gt=0, lt=1, description="ESC command that hovers")
     thrust_curve_quadratic: float = Field(
         0.54, gt=0, le=1, description="thrust/weight = q x^2 + (1-q) x, x = throttle/hover"
+    )
+    # Land detector (sitl/control.py Px4LandDetector; docs/sitl.md "Land detector").
+    land_detector: Literal["px4", "contact"] = Field(
+        "px4", description="px4: PX4's LNDMC stages (commanded descent, stillness, low thrust); contact: landed at the first settling contact (before 2026-03)"
+    )
+    land_z_vel_max_m_s: float = Field(
+        0.25, gt=0, description="LNDMC_Z_VEL_MAX: still below this climb rate; ground contact needs a commanded descent of 1.1x it"
+    )
+    land_xy_vel_max_m_s: float = Field(1.5, gt=0, description="LNDMC_XY_VEL_MAX: still below this ground speed")
+    land_rot_max_deg_s: float = Field(20.0, gt=0, description="LNDMC_ROT_MAX: still below this roll/pitch rate")
+    land_trigger_time_s: float = Field(
+        1.0, gt=0, description="LNDMC_TRIG_TIME: ground contact, maybe landed, landed take a third each"
     )
 
 
@@ -173,11 +185,21 @@ class PersonalityConfig(Section):
     guid_timeout_s: float = Field(3.0, gt=0, le=60, description="ardupilot: GUID_TIMEOUT, velocity setpoints missing -> stop")
 
 
+class EstimatorConfig(Section):
+    """Where the estimator's local frame is (docs/sitl.md "Local frame"): PX4's origin is where
+    its estimator started, not the ground, so heights read on the ground are not 0."""
+
+    height_offset_m: float = Field(
+        0.7, ge=-10, le=10, description="px4: reported LOCAL_POSITION_NED z = true z - this (on the ground the height reads +this); ardupilot: always 0 (origin = home)"
+    )
+
+
 class SitlConfig(Section):
     personality: PersonalityConfig = PersonalityConfig()
     clock: ClockConfig = ClockConfig()
     network: NetworkConfig = NetworkConfig()
     autopilot: AutopilotConfig = AutopilotConfig()
+    estimator: EstimatorConfig = EstimatorConfig()
     world: WorldConfig = WorldConfig()
     camera: CameraConfig = CameraConfig()
     disturbance: DisturbanceConfig = DisturbanceConfig()
@@ -207,4 +229,25 @@ def load_sitl_config(path: str | Path | None = None) -> SitlConfig:
         return SitlConfig()
     data = read_toml(path)
     check_top_level(data, str(path))
-    return build(SitlConfig, section(data, "sitl"), f"[sitl] in {path}")
+    return build(SitlConfig, experiment_task(data, section(data, "sitl")), f"[sitl] in {path}")
+
+
+EXPERIMENT_TASK: dict[tuple[str, str], object] = {
+    ("autopilot", "land_detector"): "contact",
+    ("estimator", "height_offset_m"): 0.0,
+}
+"""Settings added after the experiments were designed (PX4's land-detector rule and estimator
+offset, 2026-12), with the values their task was run with: an experiment file (one with an
+``[experiment]`` table, also the file ``col ppo --config`` takes) that does not name them gets
+these, so its committed results stay what its trials give. The companion does the same for its
+touchdown assist (companion.config.EXPERIMENT_TASK)."""
+
+
+def experiment_task(data: dict[str, Any], sitl: dict[str, Any]) -> dict[str, Any]:
+    """``[sitl]`` of ``data`` with :data:`EXPERIMENT_TASK` filled in for an experiment file."""
+    if "experiment" not in data:
+        return sitl
+    out = {table: dict(values) if isinstance(values, dict) else values for table, values in sitl.items()}
+    for (table, key), value in EXPERIMENT_TASK.items():
+        out.setdefault(table, {}).setdefault(key, value)
+    return out

@@ -8,7 +8,7 @@ used but not finite makes the whole message invalid: it is refused, never flown.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from sitl.control import Setpoint
 
@@ -25,6 +25,7 @@ FRAME_BODY_OFFSET_NED = 9
 FRAME_BODY_FRD = 12
 BODY_FRAMES = (FRAME_BODY_NED, FRAME_BODY_OFFSET_NED, FRAME_BODY_FRD)
 SUPPORTED_FRAMES = (FRAME_LOCAL_NED, FRAME_LOCAL_OFFSET_NED, *BODY_FRAMES)
+ABSOLUTE_FRAMES = (FRAME_LOCAL_NED, FRAME_BODY_NED, FRAME_BODY_FRD)  # positions from the origin
 NAN = math.nan
 
 
@@ -70,6 +71,15 @@ def _pick(values: tuple[float, float, float], masks: tuple[int, int, int], type_
         else:
             out.append(float(v))
     return out
+
+
+def from_reported_frame(f: TargetFields, height_offset_m: float) -> TargetFields:
+    """``f`` with a position from the origin moved from the reported local frame (the
+    estimator's, ``height_offset_m`` below the true one) into the true one; relative positions,
+    velocities and offset 0 are left alone (no arithmetic: bit for bit as before)."""
+    if height_offset_m == 0.0 or f.frame not in ABSOLUTE_FRAMES or f.type_mask & IGNORE_Z:
+        return f
+    return replace(f, z=f.z + height_offset_m)
 
 
 def to_setpoint(

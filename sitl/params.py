@@ -78,23 +78,41 @@ BINDINGS: tuple[Binding, ...] = (
     Binding("MC_YAWRATE_I", "rate_i_yaw", 0.0, 2.0),
     Binding("MPC_THR_HOVER", "hover_throttle", 0.1, 0.8),
 )
-BINDING_BY_NAME = {b.name: b for b in BINDINGS}
+# PX4's multicopter land detector, listed (after the identity parameters: the others keep their
+# indices) only with ``land_detector = "px4"``: the "contact" rule has none, and its parameter
+# list stays what it was before these existed
+LAND_BINDINGS: tuple[Binding, ...] = (
+    Binding("LNDMC_Z_VEL_MAX", "land_z_vel_max_m_s", 0.01, 5.0),
+    Binding("LNDMC_XY_VEL_MAX", "land_xy_vel_max_m_s", 0.1, 10.0),
+    Binding("LNDMC_ROT_MAX", "land_rot_max_deg_s", 1.0, 360.0),
+    Binding("LNDMC_TRIG_TIME", "land_trigger_time_s", 0.1, 10.0),
+)
+ALL_BINDINGS = BINDINGS + LAND_BINDINGS
+BINDING_BY_NAME = {b.name: b for b in ALL_BINDINGS}
+
+
+def _bound(cfg: AutopilotConfig, bindings: tuple[Binding, ...]) -> list[Param]:
+    return [Param(b.name, getattr(cfg, b.field) * b.scale, REAL32, b.minimum, b.maximum) for b in bindings]
 
 
 def autopilot_params(cfg: AutopilotConfig) -> list[Param]:
     """PX4-named parameters for the limits, gains and failsafes the SITL's autopilot honours."""
-    bound = [Param(b.name, getattr(cfg, b.field) * b.scale, REAL32, b.minimum, b.maximum) for b in BINDINGS]
-    return bound + [
+    return _bound(cfg, BINDINGS) + [
         Param("COM_DISARM_LAND", 2.0, REAL32, -1.0, 20.0),
         Param("MAV_SYS_ID", 1, INT32, 1, 255),
         Param("MAV_TYPE", mavlink.MAV_TYPE_QUADROTOR, INT32, 0, 50),
         Param("SYS_AUTOSTART", 4001, INT32, 0, 9_999_999),
-    ]
+    ] + _bound(cfg, land_bindings(cfg))
+
+
+def land_bindings(cfg: AutopilotConfig) -> tuple[Binding, ...]:
+    """The LNDMC_* parameters this config's land detector has (none for "contact")."""
+    return LAND_BINDINGS if cfg.land_detector == "px4" else ()
 
 
 def apply_to_config(cfg: AutopilotConfig, store: ParamStore) -> AutopilotConfig:
     """The autopilot config with every bound parameter's current value."""
-    update = {b.field: store.get(b.name) / b.scale for b in BINDINGS}
+    update = {b.field: store.get(b.name) / b.scale for b in BINDINGS + land_bindings(cfg)}
     return cfg.model_copy(update=update)
 
 

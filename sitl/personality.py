@@ -209,6 +209,15 @@ class CopterVehicle(SimVehicle):
     def heartbeat_mode(self) -> tuple[int, int]:
         return M.MAV_AUTOPILOT_ARDUPILOTMEGA, int(self.copter_mode)
 
+    def land_rule(self) -> str:
+        """ArduCopter's land detector works on the throttle at its lower limit, not on a commanded
+        descent: the contact rule is the nearer one, whatever ``autopilot.land_detector`` says."""
+        return "contact"
+
+    def estimator_height_offset_m(self) -> float:
+        """ArduCopter's EKF origin is home: heights read 0 on the ground there."""
+        return 0.0
+
     def settling(self) -> bool:
         """The EKF is still settling after boot: no arming, no GUIDED."""
         return self.time_s < self._settle_s

@@ -105,8 +105,10 @@ def attitude_quaternion(v: SimVehicle) -> mavlink.MAVLink_message:
 
 
 def local_position_ned(v: SimVehicle) -> mavlink.MAVLink_message:
+    """In the estimator's frame: z is ``height_offset_m`` less than the truth (x - 0.0 is exact)."""
     s = v.state
-    return M.MAVLink_local_position_ned_message(v.time_boot_ms, *s.position_ned_m, *s.velocity_ned_m_s)
+    n, e, d = s.position_ned_m
+    return M.MAVLink_local_position_ned_message(v.time_boot_ms, n, e, d - v.height_offset_m, *s.velocity_ned_m_s)
 
 
 def global_position_int(v: SimVehicle) -> mavlink.MAVLink_message:
@@ -129,9 +131,11 @@ def gps_raw_int(v: SimVehicle) -> mavlink.MAVLink_message:
 
 
 def home_position(v: SimVehicle) -> mavlink.MAVLink_message:
+    """Home's true latitude, longitude and AMSL altitude; its x, y, z in the reported local frame."""
     n, e, d = v.home_ned_m
     lat, lon, alt = ned_to_geodetic(v, n, e, d)
-    return M.MAVLink_home_position_message(lat, lon, alt, n, e, d, [1, 0, 0, 0], 0, 0, 0, int(v.time_s * 1e6))
+    z = d - v.height_offset_m
+    return M.MAVLink_home_position_message(lat, lon, alt, n, e, z, [1, 0, 0, 0], 0, 0, 0, int(v.time_s * 1e6))
 
 
 def battery_status(v: SimVehicle) -> mavlink.MAVLink_message:

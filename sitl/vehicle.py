@@ -15,11 +15,11 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.config import SitlConfig
-from sitl.control import FlightController, Setpoint
+from sitl.control import FlightController, Px4LandDetector, Setpoint, wants_takeoff
 from sitl.disturbance import EpisodeDisturbance
 from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Dynamics, VehicleState
 from sitl.modes import Mode, refusal
-from sitl.offboard import SetpointRejected, TargetFields, to_setpoint
+from sitl.offboard import SetpointRejected, TargetFields, from_reported_frame, to_setpoint
 from sitl.params import BINDING_BY_NAME, ParamStore, apply_to_config, autopilot_params
 from sitl.world import Touchdown, World
 
@@ -62,6 +62,9 @@ class SimVehicle:
         self.world.restart(0.0, self.disturbance.vehicle_velocity_ne_m_s)
         self.dynamics = self._new_dynamics()
         self.controller = FlightController(cfg.autopilot, self.dynamics.dt_s)
+        self.land_detector = Px4LandDetector(cfg.autopilot)
+        self._px4_landing = self.land_rule() == "px4"
+        self.height_offset_m = self.estimator_height_offset_m()
         self.params = ParamStore(autopilot_params(cfg.autopilot))
         self.rng = np.random.default_rng(cfg.world.seed)
         self.events: deque[tuple[int, str]] = deque(maxlen=64)
@@ -106,6 +109,7 @@ class SimVehicle:
         self._manual_at_s = -math.inf
         self._last_down_speed_m_s = 0.0
         self.controller.reset()
+        self.land_detector.reset(landed=True)
 
     @property
     def state(self) -> VehicleState:
@@ -160,6 +164,15 @@ class SimVehicle:
         """Personality: HEARTBEAT (autopilot, custom_mode)."""
         return mavlink.MAV_AUTOPILOT_PX4, self.mode.custom_mode
 
+    def land_rule(self) -> str:
+        """Personality: which land detector decides :attr:`landed` (docs/sitl.md "Land detector")."""
+        return self.cfg.autopilot.land_detector
+
+    def estimator_height_offset_m(self) -> float:
+        """Personality: how far the reported local frame's origin is below the true one (PX4's
+        estimator starts its origin where it started, not on the ground)."""
+        return self.cfg.estimator.height_offset_m
+
     def set_mode_numbers(self, main: int, sub: int) -> tuple[int, str]:
         """Personality: MAV_CMD_DO_SET_MODE's param2 and param3 (PX4: main and sub mode)."""
         try:
@@ -184,7 +197,9 @@ class SimVehicle:
         if self.params.set(name, wire_value, kind) is None:
             return False
         if name in BINDING_BY_NAME:
-            self.controller.configure(apply_to_config(self.controller.cfg, self.params))
+            cfg = apply_to_config(self.controller.cfg, self.params)
+            self.controller.configure(cfg)
+            self.land_detector.configure(cfg)
         return True
 
     def say(self, severity: int, text: str) -> None:
@@ -196,8 +211,7 @@ class SimVehicle:
         state = self.dynamics.state
         self._check_failsafes(state.time_s)
         self._progress_mode(state)
-        esc = self.controller.update(state, self._sp, self.armed)
-        new = self.dynamics.step(esc)
+        new = self.dynamics.step(self._esc(state))
         self._ground_contact(new)
         if self._camera_history is not None:
             self._camera_history.append(new)
@@ -211,7 +225,17 @@ class SimVehicle:
                 self._set_mode(Mode.AUTO_LOITER)
                 self._sp = Setpoint(position_ned_m=target.position_ned_m, velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=target.yaw_rad)
 
+    def _esc(self, state: VehicleState) -> tuple[float, float, float, float]:
+        """The controller's output; with PX4's land detector a landed vehicle idles until a
+        setpoint asks it to take off (PX4's take-off handling)."""
+        if self._px4_landing and self.armed and self.land_detector.landed and not wants_takeoff(state, self._sp):
+            return self.controller.idle(state)
+        return self.controller.update(state, self._sp, self.armed)
+
     def _ground_contact(self, s: VehicleState) -> None:
+        """The touchdown (ground truth: the first settling contact after flight) and the landed
+        state: that contact itself ("contact"), or PX4's land detector ("px4")."""
+        contact_rule = not self._px4_landing
         vn, ve, vd = s.velocity_ned_m_s
         speed = math.sqrt(vn * vn + ve * ve + vd * vd)
         if s.on_ground and speed < LANDED_SPEED_M_S + 2.0 * abs(self._last_down_speed_m_s):
@@ -221,13 +245,23 @@ class SimVehicle:
                 verdict = "on the pad" if self.touchdown.success else "off the pad"
                 self.say(mavlink.MAV_SEVERITY_NOTICE, f"Touchdown {verdict}, {self.touchdown.distance_to_pad_m:.2f} m")
             self._airborne = False
-            if self._landed_since_s is None:
+            if contact_rule and self._landed_since_s is None:
                 self._landed_since_s = s.time_s
         elif not s.on_ground:
             self._airborne = True
-            self._landed_since_s = None
+            if contact_rule:
+                self._landed_since_s = None
+        if not contact_rule:
+            self._detect_landing(s)
         self._last_down_speed_m_s = vd
         self._auto_disarm(s.time_s)
+
+    def _detect_landing(self, s: VehicleState) -> None:
+        """PX4's land detector, fed the setpoint's commanded descent and the thrust asked for."""
+        if not self.land_detector.update(s, self._sp.velocity_ned_m_s[2], self.controller.lift_ratio, self.armed):
+            self._landed_since_s = None
+        elif self._landed_since_s is None:
+            self._landed_since_s = s.time_s
 
     def _auto_disarm(self, t_s: float) -> None:
         if not self.armed or self._landed_since_s is None:
@@ -336,6 +370,7 @@ class SimVehicle:
     def offboard_setpoint(self, f: TargetFields) -> bool:
         """Apply SET_POSITION_TARGET_LOCAL_NED; False (and a warning) when it is refused."""
         s = self.state
+        f = from_reported_frame(f, self.height_offset_m)
         try:
             sp = to_setpoint(f, s.position_ned_m, s.attitude_rad[2], self.params.get("MPC_XY_VEL_MAX"))
         except SetpointRejected as exc:
@@ -391,6 +426,7 @@ class SimVehicle:
         self._start_disturbance()
         self._enter_landed_disarmed()
         self._landed_since_s = None
+        self.land_detector.reset(landed=False)
         self._airborne = True
         self.armed = True
         self._armed_at_s = t

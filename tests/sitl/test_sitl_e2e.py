@@ -117,9 +117,9 @@ def lockstep_trace(seed: int, frames: int) -> list[tuple]:
                     trace.append(tuple(m.to_dict().values()))
                 if m.get_type() == "SYSTEM_TIME" and m.time_boot_ms > reset["time_boot_ms"]:
                     k = answered
-                    c.body_velocity(math.sin(0.1 * k), math.cos(0.07 * k), 0.3 * math.sin(0.05 * k), 0.2, echo_ms=m.time_boot_ms)
-                    if answered == 2:
+                    if answered == 2:  # before the answer: sent after it, it could miss this frame
                         c.send(M.MAVLink_command_long_message(1, 1, M.MAV_CMD_DO_SET_MODE, 0, 1, 6, 0, 0, 0, 0, 0))
+                    c.body_velocity(math.sin(0.1 * k), math.cos(0.07 * k), 0.3 * math.sin(0.05 * k), 0.2, echo_ms=m.time_boot_ms)
                     answered += 1
         ctl.close()
         return trace

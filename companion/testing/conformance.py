@@ -1,0 +1,293 @@
+"""One scripted flight, flown the same way against any vehicle, to compare autopilots.
+
+Arm, take off, hand over to the companion's setpoints, descend slowly (0.26 m/s, below PX4's
+land-detector threshold of 1.1 x LNDMC_Z_VEL_MAX), then at 0.33 m/s, and see whether and when the
+vehicle says it has landed and disarms. It talks plain pymavlink, not the companion's link, so
+what it records is the vehicle's behaviour, not ours: the same script against real PX4 SIH and
+our SITL's PX4 personality (and real ArduCopter against our ArduPilot personality) gives the
+conformance table of docs/link.md.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from pymavlink import mavutil
+
+M = mavutil.mavlink
+NAN = math.nan
+SLOW_DESCENT_M_S = 0.26
+FAST_DESCENT_M_S = 0.33
+TAKEOFF_ALT_M = 2.5
+MODES = {  # (take-off mode, offboard mode) as pymavlink names them
+    "PX4": ("LOITER", "OFFBOARD"),
+    "ARDUPILOTMEGA": ("GUIDED", "GUIDED"),
+}
+
+
+@dataclass
+class Outcome:
+    """What the vehicle did at each step of the script (ACK result names, seconds)."""
+
+    autopilot: str = ""
+    land_param: dict[str, float | None] = field(default_factory=dict)
+    takeoff_mode_ack: str = ""
+    armable_after_s: float | None = None
+    arm_refusals: list[str] = field(default_factory=list)
+    takeoff_ack: str = ""
+    climbed_m: float | None = None
+    offboard_ack: str = ""
+    mode_in_offboard: str = ""
+    landed_at_slow_descent_s: float | None = None  # None: not within the slow phase
+    landed_at_fast_descent_s: float | None = None
+    disarmed: str = ""  # "by itself after N s", "on command: ACK", "no"
+    standing_height_m: float | None = None  # -z of LOCAL_POSITION_NED while standing before arming
+    home_z_m: float | None = None
+    errors: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class Script:
+    """The scripted flight on one MAVLink connection."""
+
+    def __init__(self, connection: str, slow_s: float = 25.0, fast_s: float = 20.0) -> None:
+        self.mav = mavutil.mavlink_connection(connection, source_system=246, source_component=191)
+        self.slow_s, self.fast_s = slow_s, fast_s
+        self.out = Outcome()
+        self.z = NAN
+        self.landed = 0
+        self.armed = False
+        self.mode = ""
+        self.home_z: float | None = None
+
+    # ----- plumbing ---------------------------------------------------------------------------
+    def _pump(self, seconds: float, until: Any = None) -> Any:
+        """Read messages for up to ``seconds``; return the first for which ``until`` is true."""
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            msg = self.mav.recv_match(blocking=True, timeout=min(left, 0.2))
+            if msg is None:
+                continue
+            self._fold(msg)
+            if until is not None and until(msg):
+                return msg
+        return None
+
+    def _fold(self, msg: Any) -> None:
+        kind = msg.get_type()
+        if msg.get_srcComponent() != 1 and kind != "COMMAND_ACK":
+            return
+        if kind == "LOCAL_POSITION_NED":
+            self.z = float(msg.z)
+        elif kind == "EXTENDED_SYS_STATE":
+            self.landed = int(msg.landed_state)
+        elif kind == "HOME_POSITION":
+            self.home_z = float(msg.z)
+        elif kind == "HEARTBEAT" and msg.type not in (M.MAV_TYPE_GCS, M.MAV_TYPE_ONBOARD_CONTROLLER):
+            self.armed = bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
+            self.mode = mavutil.mode_string_v10(msg)
+        elif kind == "STATUSTEXT" and msg.severity <= M.MAV_SEVERITY_WARNING:
+            text = str(msg.text)
+            if text not in self.out.arm_refusals and len(self.out.arm_refusals) < 20:
+                self.out.arm_refusals.append(text)
+
+    def _command(self, command: int, params: list[float], timeout_s: float = 3.0) -> str:
+        padded = (params + [0.0] * 7)[:7]
+        for attempt in range(3):
+            self.mav.mav.command_long_send(self.mav.target_system, 1, command, attempt, *padded)
+            ack = self._pump(timeout_s / 3, lambda m: m.get_type() == "COMMAND_ACK" and m.command == command)
+            if ack is not None:
+                return str(M.enums["MAV_RESULT"][ack.result].name).removeprefix("MAV_RESULT_")
+        return "NO_ACK"
+
+    def _set_mode(self, name: str) -> str:
+        mapping = self.mav.mode_mapping() or {}
+        if name not in mapping:
+            return f"UNKNOWN_MODE({name})"
+        number = mapping[name]
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (M.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        if isinstance(number, tuple):  # PX4: (base, main, sub)
+            return self._command(M.MAV_CMD_DO_SET_MODE, [float(base), float(number[1]), float(number[2])])
+        return self._command(M.MAV_CMD_DO_SET_MODE, [float(base), float(number)])
+
+    def _velocity(self, down_m_s: float) -> None:
+        self.mav.mav.set_position_target_local_ned_send(
+            0, self.mav.target_system, 1, M.MAV_FRAME_BODY_NED, 0x5C7,
+            0.0, 0.0, 0.0, 0.0, 0.0, down_m_s, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def _stream(self, down_m_s: float, seconds: float, until: Any = None) -> float | None:
+        """Stream a body velocity at 10 Hz for ``seconds``; seconds until ``until()`` (None: never)."""
+        start = time.monotonic()
+        while (elapsed := time.monotonic() - start) < seconds:
+            self._velocity(down_m_s)
+            self._pump(0.1)
+            if until is not None and until():
+                return elapsed
+        return None
+
+    def _param(self, name: str) -> float | None:
+        self.mav.mav.param_request_read_send(self.mav.target_system, 1, name.encode(), -1)
+        msg = self._pump(3.0, lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
+        return None if msg is None else float(msg.param_value)
+
+    # ----- the script -------------------------------------------------------------------------
+    def run(self, armable_timeout_s: float = 120.0) -> Outcome:
+        out = self.out
+        hb = self.mav.wait_heartbeat(timeout=60)
+        if hb is None:
+            out.errors.append("no HEARTBEAT")
+            return out
+        out.autopilot = str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
+        takeoff_mode, offboard_mode = MODES.get(out.autopilot, ("", ""))
+        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("HOME_POSITION", 1)):
+            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        names = ("LNDMC_Z_VEL_MAX",) if out.autopilot == "PX4" else ("LAND_SPEED", "LAND_SPEED_HIGH")
+        out.land_param = {n: self._param(n) for n in names}
+        self._arm(takeoff_mode, armable_timeout_s)
+        if not self.armed:
+            out.errors.append("never armed")
+            return self._finish()
+        if out.autopilot == "PX4":
+            self.mav.mav.param_set_send(self.mav.target_system, 1, b"MIS_TAKEOFF_ALT", TAKEOFF_ALT_M, M.MAV_PARAM_TYPE_REAL32)
+            self._pump(0.5)
+            out.takeoff_ack = self._command(M.MAV_CMD_NAV_TAKEOFF, [-1.0, 0.0, 0.0, NAN, NAN, NAN, NAN])
+        else:
+            out.takeoff_ack = self._command(M.MAV_CMD_NAV_TAKEOFF, [0.0, 0.0, 0.0, NAN, 0.0, 0.0, TAKEOFF_ALT_M])
+        ground_z = self.z
+        self._pump(15.0, lambda m: m.get_type() == "LOCAL_POSITION_NED" and ground_z - m.z > 0.9 * TAKEOFF_ALT_M)
+        self._pump(2.0)
+        out.climbed_m = round(ground_z - self.z, 2)
+        self._stream(0.0, 1.0)  # a fresh stream first: PX4 refuses OFFBOARD without one
+        out.offboard_ack = self._set_mode(offboard_mode)
+        self._stream(0.0, 1.5)
+        out.mode_in_offboard = self.mode
+        on_ground = lambda: self.landed == M.MAV_LANDED_STATE_ON_GROUND  # noqa: E731
+        out.landed_at_slow_descent_s = _rounded(self._stream(SLOW_DESCENT_M_S, self.slow_s, on_ground))
+        if out.landed_at_slow_descent_s is None:
+            out.landed_at_fast_descent_s = _rounded(self._stream(FAST_DESCENT_M_S, self.fast_s, on_ground))
+        return self._finish()
+
+    def _arm(self, takeoff_mode: str, timeout_s: float) -> None:
+        out = self.out
+        start = time.monotonic()
+        self._pump(1.0)
+        out.standing_height_m = None if math.isnan(self.z) else round(-self.z, 3)
+        out.home_z_m = None if self.home_z is None else round(self.home_z, 3)
+        while time.monotonic() - start < timeout_s:
+            ack = self._set_mode(takeoff_mode)
+            out.takeoff_mode_ack = out.takeoff_mode_ack or ack
+            if ack == "ACCEPTED" and self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, [1.0]) == "ACCEPTED":
+                self._pump(1.5)
+                if self.armed and self.mode == takeoff_mode:
+                    out.takeoff_mode_ack = ack
+                    out.armable_after_s = round(time.monotonic() - start, 1)
+                    return
+            self._pump(1.0)
+
+    def _finish(self) -> Outcome:
+        out = self.out
+        start = time.monotonic()
+        if self.armed:
+            self._pump(20.0, lambda m: not self.armed)
+        if not self.armed:
+            out.disarmed = f"by itself after {time.monotonic() - start:.0f} s"
+        else:
+            out.disarmed = "on command: " + self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, [0.0])
+            if out.disarmed.endswith("ACCEPTED"):
+                self._pump(2.0)
+            else:
+                self._command(M.MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, NAN, NAN, NAN, NAN])
+        self.mav.close()
+        return out
+
+
+def _rounded(value: float | None) -> float | None:
+    return None if value is None else round(value, 1)
+
+
+def fly_script(connection: str, slow_s: float = 25.0, fast_s: float = 20.0) -> Outcome:
+    """Run the script once against the vehicle at ``connection``."""
+    return Script(connection, slow_s, fast_s).run()
+
+
+COMPARED = ("takeoff_mode_ack", "takeoff_ack", "offboard_ack", "mode_in_offboard")
+
+
+def differences(real: Outcome, ours: Outcome) -> list[str]:
+    """Where our SITL's outcome differs from the real autopilot's in what the companion relies
+    on: the ACKs, the mode it flies in, whether the slow and the fast descent end in a landed
+    state, and whether it then disarms by itself (times are reported, not compared)."""
+    diffs = [f"{name}: real {getattr(real, name)!r}, ours {getattr(ours, name)!r}"
+             for name in COMPARED if getattr(real, name) != getattr(ours, name)]
+    for name in ("landed_at_slow_descent_s", "landed_at_fast_descent_s"):
+        r, o = getattr(real, name) is not None, getattr(ours, name) is not None
+        if r != o:
+            diffs.append(f"{name}: real {'landed' if r else 'not landed'}, ours {'landed' if o else 'not landed'}")
+    if real.disarmed.split(" after")[0] != ours.disarmed.split(" after")[0]:
+        diffs.append(f"disarmed: real {real.disarmed!r}, ours {ours.disarmed!r}")
+    return diffs
+
+
+def main() -> None:
+    """Fly the script against real PX4 SIH, real ArduCopter and our SITL as each, side by side,
+    and print one JSON object: each outcome and the differences (docs/link.md's table)."""
+    import argparse
+    import json
+    import tempfile
+    import threading
+    from pathlib import Path
+
+    from companion.simulator import start_sitl
+    from companion.testing.autopilots import find_autopilots, free_udp_port, start_ardupilot, start_px4
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--out", type=Path, help="also write the JSON here")
+    args = parser.parse_args()
+    root, why = find_autopilots()
+    if root is None:
+        raise SystemExit(why)
+    work = Path(tempfile.mkdtemp(prefix="conformance-"))
+    config = work / "sitl.toml"
+    config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
+    connections: dict[str, str] = {}
+    stops = []
+    for kind, start in (("real px4", start_px4), ("real ardupilot", start_ardupilot)):
+        ap = start(root, work / kind.replace(" ", "-"))
+        connections[kind] = ap.connection
+        stops.append(ap.stop)
+    for personality in ("px4", "ardupilot"):
+        port = free_udp_port()
+        sitl = start_sitl(port, clock="realtime", config=config, camera=False, timeout_s=120.0,
+                          extra_args=["--autopilot", personality])
+        connections[f"ours {personality}"] = f"udpin:127.0.0.1:{port}"
+        stops.append(sitl.stop)
+    outcomes: dict[str, Outcome] = {}
+
+    def fly(name: str) -> None:
+        outcomes[name] = fly_script(connections[name])
+
+    try:
+        threads = [threading.Thread(target=fly, args=(name,)) for name in connections]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        for stop in stops:
+            stop()
+    report = {"outcomes": {k: v.to_dict() for k, v in sorted(outcomes.items())},
+              "differences": {p: differences(outcomes[f"real {p}"], outcomes[f"ours {p}"]) for p in ("px4", "ardupilot")}}
+    text = json.dumps(report, indent=1)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text + "\n")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
