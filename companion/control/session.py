@@ -393,7 +393,7 @@ class EpisodeRunner:
             if snap is None:
                 raise LinkError("lost the vehicle while flying to the start point")
             echo = self._frame_ms if self.p.lockstep else None
-            north, east, down = self.home.to_vehicle(target)
+            north, east, down = self.home.to_vehicle(target.tolist())
             self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
             if i % 10 == 2 and not self.dialect.is_offboard(snap.mode):  # again if a failsafe took it
                 self.p.link.set_mode(self.dialect.offboard_mode)

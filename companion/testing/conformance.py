@@ -243,7 +243,12 @@ def main() -> None:
     from pathlib import Path
 
     from companion.simulator import start_sitl
-    from companion.testing.autopilots import find_autopilots, free_udp_port, start_ardupilot, start_px4
+    from companion.testing.autopilots import (
+        find_autopilots,
+        free_udp_port,
+        start_ardupilot,
+        start_px4,
+    )
 
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--out", type=Path, help="also write the JSON here")

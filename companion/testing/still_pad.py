@@ -35,7 +35,8 @@ def write_still_pad_video(path: Path, height_above_pad_m: float = 1.0, seconds: 
         raise ValueError(f"height, seconds and fps must be > 0, got {height_above_pad_m}, {seconds}, {fps}")
     frame = pad_frame(height_above_pad_m)
     size = (frame.shape[1], frame.shape[0])
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+    fourcc = cv2.VideoWriter.fourcc(*"mp4v")
+    writer = cv2.VideoWriter(str(path), fourcc, fps, size)
     if not writer.isOpened():
         raise OSError(f"OpenCV cannot write an MPEG-4 video to {path}")
     try:

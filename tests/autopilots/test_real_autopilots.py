@@ -27,7 +27,12 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
-from companion.testing.autopilots import RunningAutopilot, find_autopilots, start_ardupilot, start_px4
+from companion.testing.autopilots import (
+    RunningAutopilot,
+    find_autopilots,
+    start_ardupilot,
+    start_px4,
+)
 from companion.testing.still_pad import write_still_pad_video
 
 pytestmark = [pytest.mark.autopilot, pytest.mark.timeout(900)]

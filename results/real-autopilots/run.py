@@ -1,0 +1,91 @@
+"""The done-when of the real-autopilot work: `col fly --pilot expert --episodes 5` on a freshly
+started real PX4 SIH and a freshly started real ArduCopter SITL, repeated on fresh instances.
+
+    python results/real-autopilots/run.py --repeats 5 --out results/real-autopilots
+
+Each repeat starts both autopilots at once (their own ports, fresh folders), flies them side by
+side, and stops them; the camera is a still video of the pad from 1 m above it (the autopilots
+render none). Writes runs.jsonl (one line per episode, with the repeat and autopilot) and
+summary.json (touchdowns and fence stops per run), both from the runs' own episodes.jsonl.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+from companion.testing.autopilots import find_autopilots, start_ardupilot, start_px4
+from companion.testing.still_pad import write_still_pad_video
+
+CONFIG = """
+[companion.session]
+start_height_above_pad_m = 3.0
+start_xy_range_m = 1.0
+"""
+
+
+def fly(kind: str, root: Path, work: Path, camera: Path, config: Path, episodes: int) -> list[dict]:
+    ap = (start_px4 if kind == "px4" else start_ardupilot)(root, work / kind)
+    run_dir = work / f"run-{kind}"
+    col = str(Path(sys.executable).with_name("col"))
+    try:
+        done = subprocess.run([col, "fly", "--pilot", "expert", "--episodes", str(episodes), "--connect", ap.connection,
+                               "--camera", str(camera), "--config", str(config), "--run-dir", str(run_dir)],
+                              capture_output=True, text=True, timeout=1800, stdin=subprocess.DEVNULL)
+    finally:
+        ap.stop()
+    (work / f"{kind}.out").write_text(done.stdout + done.stderr)
+    path = run_dir / "episodes.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def one(results: dict[str, list[dict]], kind: str, *args: object) -> None:
+    results[kind] = fly(kind, *args)  # type: ignore[arg-type]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--episodes", type=int, default=5)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    root, why = find_autopilots()
+    if root is None:
+        raise SystemExit(why)
+    args.out.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix="real-autopilots-"))
+    config = work / "config.toml"
+    config.write_text(CONFIG)
+    camera = write_still_pad_video(work / "pad.mp4", height_above_pad_m=1.0, seconds=1200.0)
+    lines, summary = [], []
+    for repeat in range(args.repeats):
+        results: dict[str, list[dict]] = {}
+        rep_dir = work / f"repeat-{repeat}"
+
+        threads = [threading.Thread(target=one, args=(results, k, root, rep_dir, camera, config, args.episodes))
+                   for k in ("px4", "ardupilot")]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for kind, records in sorted(results.items()):
+            outcomes = [r["outcome"] for r in records]
+            summary.append({"repeat": repeat, "autopilot": kind, "episodes": len(records),
+                            "touchdowns": outcomes.count("touchdown"), "fence": outcomes.count("fence"),
+                            "outcomes": outcomes})
+            lines += [dict(r, repeat=repeat, autopilot=kind) for r in records]
+            print(json.dumps(summary[-1]), flush=True)
+    (args.out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    (args.out / "config.toml").write_text(CONFIG.lstrip())
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    print(json.dumps({"runs": len(summary), "all_at_least_4": all(s["touchdowns"] >= 4 for s in summary),
+                      "fence_stops": sum(s["fence"] for s in summary)}))
+
+
+if __name__ == "__main__":
+    main()
