@@ -136,6 +136,7 @@ def test_requests_the_telemetry_rates_it_needs(fake, make_link) -> None:
         mavlink.MAVLINK_MSG_ID_ATTITUDE: pytest.approx(25_000),
         mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: pytest.approx(25_000),
         mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: pytest.approx(500_000),
+        mavlink.MAVLINK_MSG_ID_HOME_POSITION: pytest.approx(2_000_000),  # heights are taken from home
     }
 
 
@@ -472,6 +473,7 @@ def test_each_message_changes_exactly_the_fields_its_handler_names() -> None:
         "ATTITUDE": _decoded(enc.attitude_encode(510, 0.1, -0.2, 0.3, 0.01, 0.02, 0.03), enc),
         "EXTENDED_SYS_STATE": _decoded(enc.extended_sys_state_encode(0, 2), enc),
         "SYSTEM_TIME": _decoded(enc.system_time_encode(0, 600), enc),
+        "HOME_POSITION": _decoded(enc.home_position_encode(0, 0, 0, 0.0, 0.0, -0.7, [1, 0, 0, 0], 0, 0, 0), enc),
     }
     assert messages.keys() == HANDLERS.keys()
     names = {f.name for f in dataclasses.fields(VehicleSnapshot)}
