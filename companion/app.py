@@ -39,6 +39,7 @@ from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect, dialect_for
+from companion.vision.rendered import RENDER_SCHEME, RenderedCamera
 from companion.link.signing import read_key
 from companion.run_folder import prepare_run_dir
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
@@ -151,6 +152,8 @@ class RunResult:
     dataset_size: int = 0
     latencies_s: list[float] = field(default_factory=list)
     learner_error: str | None = None
+    frame_ages_ms: list[int] = field(default_factory=list)
+    """Each observation's camera frame age (the telemetry's time minus the frame's stamp)."""
 
     @property
     def successes(self) -> int:
@@ -174,7 +177,20 @@ class RunResult:
             "policy_version": None if self.final_snapshot is None else self.final_snapshot.version,
             "run_dir": str(self.run_dir),
             "learner_error": self.learner_error,
+            "frame_age_ms": _percentiles(self.frame_ages_ms),
         }
+
+
+def _percentiles(values: list[int]) -> dict[str, float] | None:
+    """p50/p95 of a run's frame ages (None: no frame was used)."""
+    if not values:
+        return None
+    ordered = sorted(values)
+
+    def at(q: float) -> float:  # nearest rank: a frame age that occurred
+        return float(ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))])
+
+    return {"p50": at(0.5), "p95": at(0.95), "n": len(values)}
 
 
 def default_run_dir(cfg: CompanionConfig, label: str) -> Path:
@@ -220,13 +236,17 @@ def simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorCli
 
 
 def open_run_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: VehicleLink,
-                 camera_component: int = 100) -> CameraSource | None:
+                 camera_component: int = 100, config_path: Path | None = None) -> CameraSource | None:
     """The camera. ``"auto"``: our SITL's stream, or on another vehicle the stream its MAVLink
     camera (component 100, MAV_COMP_ID_CAMERA) advertises in VIDEO_STREAM_INFORMATION.
+    ``"render"``: our renderer driven by the vehicle's telemetry (a vehicle without a camera:
+    companion/vision/rendered.py), with ``[sitl.camera]`` and ``[sitl.world]`` of ``config_path``.
     ``"none"``: no camera (a test mode: every observation says the pad is not visible)."""
     if cfg.perception.camera.strip().lower() == "none":
         log.warning("camera none: a test mode, the pad is reported as not visible in every observation")
         return None
+    if cfg.perception.camera.strip().lower() == RENDER_SCHEME:
+        return open_rendered_camera(cfg, link, config_path)
     auto_uri = sitl.ports.get("camera_uri") if sitl is not None else None
     if auto_uri is None and cfg.perception.camera.strip() == "auto":
         try:
@@ -243,6 +263,20 @@ def open_run_camera(cfg: CompanionConfig, sitl: SitlProcess | None, link: Vehicl
             raise  # a source the person named must work: flying blind would record a useless dataset
         log.warning("the SITL's camera is unavailable (%s); flying with the pad reported as not visible", exc)
         return None
+
+
+def open_rendered_camera(cfg: CompanionConfig, link: VehicleLink, config_path: Path | None) -> RenderedCamera:
+    """``--camera render``: the pad world of ``config_path`` seen from the vehicle's reported pose."""
+    from sitl.config import load_sitl_config
+
+    sitl_cfg = load_sitl_config(config_path)
+    pad_n, pad_e, _ = cfg.session.pad_ned_m
+    camera = RenderedCamera(link.state, sitl_cfg.camera, sitl_cfg.world, (pad_n, pad_e),
+                            rate_hz=cfg.perception.render_rate_hz)
+    camera.open()
+    log.info("camera: rendered from the vehicle's telemetry at %.0f Hz, pad at (%.1f, %.1f) of its local frame "
+             "on a ground vehicle %.1f m high", cfg.perception.render_rate_hz, pad_n, pad_e, sitl_cfg.world.vehicle_height_m)
+    return camera
 
 
 @dataclass(frozen=True)
@@ -274,7 +308,7 @@ def open_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, run_dir
         simulator = simulator_client(opts, sitl)
         if simulator is not None:
             stack.callback(simulator.close)
-        camera = open_run_camera(cfg, sitl, link)
+        camera = open_run_camera(cfg, sitl, link, config_path=opts.config_path)
         if camera is not None:
             stack.callback(camera.close)
         yield Vehicle(link, simulator, camera, owned=sitl is not None,
@@ -338,6 +372,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             control=control,
             asker=HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz) if cfg.ask.enabled else None,
             landing=cfg.landing,
+            judge_radius_m=camera.success_radius_m if isinstance(camera, RenderedCamera) and simulator is None else None,
         )
         if control is not None:
             control.started(opened, learner, dataset)
@@ -368,6 +403,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         result.final_snapshot = learner.latest_snapshot
         result.dataset_size = len(dataset)
         result.latencies_s = list(episode_runner.step_latencies_s)
+        result.frame_ages_ms = list(parts.observer.frame_ages_ms)
     (run_dir / "summary.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     if recorder is not None:
         write_pictures(recorder, result, cfg, opts.condition)

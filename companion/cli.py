@@ -180,6 +180,31 @@ def eval_cmd(
     typer.echo(json.dumps(report))
 
 
+@app.command("camera-bridge")
+def camera_bridge_cmd(
+    connect: Annotated[str, typer.Option("--connect", help="MAVLink connection of the bridge's own (PX4's ground-station link: udpin:0.0.0.0:14550)")],
+    host: Annotated[str, typer.Option(help="address the colf:// stream is served on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port of the colf:// stream (0: any free port)")] = 5600,
+    rtp: Annotated[str, typer.Option(help="also send H.264 over RTP to HOST:PORT (a ground station: 127.0.0.1:5600)")] = "",
+    config: ConfigOpt = None,
+    verbose: VerboseOpt = False,
+) -> None:
+    """A camera for an autopilot that has none: the pad world rendered from the vehicle's telemetry.
+
+    Serves colf://HOST:PORT for `col fly --camera colf://HOST:PORT`; the pad is at
+    \\[companion.session] pad_ned_m of the vehicle's local frame, on the ground vehicle of \\[sitl.world]
+    (set vehicle_height_m = 0 where the autopilot's own ground is all there is). Ctrl-C stops."""
+    _setup(verbose)
+    from companion.vision.bridge import run_bridge
+
+    try:
+        run_bridge(connect, config, host, port, rtp, on_ready=lambda uri: typer.echo(f"CAMERA {uri}"))
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    except (ColError, ValueError, OSError) as exc:
+        raise _fail(exc) from exc
+
+
 @app.command("export")
 def export_cmd(
     checkpoint: Annotated[Path, typer.Argument(help="a checkpoint written by col fly / col demo")],

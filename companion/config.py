@@ -100,10 +100,11 @@ class PerceptionConfig(Section):
     """companion.perception: camera source and pad detector (see docs/camera.md)."""
 
     camera: str = Field(
-        "auto", description='"auto" (the vehicle\'s MAVLink camera), colf://host:port, a device index, a file or a URL; '
+        "auto", description='"auto" (the vehicle\'s MAVLink camera), "render" (our renderer driven by the vehicle\'s telemetry), colf://host:port, a device index, a file or a URL; '
         '"none": no camera, the pad is never visible (a test mode)'
     )
     open_timeout_s: float = Field(3.0, gt=0, description="a source that gives no frame this long fails at start")
+    render_rate_hz: float = Field(30.0, gt=0, le=100, description='camera "render": frames per second rendered from telemetry')
     frame_timeout_s: float = Field(0.2, ge=0, description="how long to wait for the frame of a control step")
     hue_min: int = Field(135, ge=0, le=179, description="OpenCV hue (0-179) range of the pad's magenta")
     hue_max: int = Field(170, ge=0, le=179)

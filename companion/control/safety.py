@@ -58,7 +58,10 @@ class Geofence:
         """The fence of ``[companion.safety]`` around ``centre_ne_m`` (e.g. the session's start)."""
         return cls(cfg.fence_radius_m, cfg.fence_min_alt_m, cfg.fence_max_alt_m, centre_ne_m)
 
-    def check(self, position_ned_m: Sequence[float]) -> FenceStatus:
+    def check(self, position_ned_m: Sequence[float], standing: bool = False) -> FenceStatus:
+        """``standing``: the vehicle stands on a surface (the touchdown assist's evidence); then
+        the floor is not checked: standing is not flying below home, and a drifting height
+        estimate (PX4 SIH: 1.4 m) must not stop a touchdown."""
         n, e, d = (float(v) for v in position_ned_m)
         if not all(math.isfinite(v) for v in (n, e, d)):
             return FenceStatus(False, "position unknown (non-finite estimate)")
@@ -72,7 +75,7 @@ class Geofence:
             return FenceStatus(
                 False, f"altitude {alt_m:.1f} m above the fence's {self.max_alt_m:g} m"
             )
-        if alt_m < self.min_alt_m:
+        if alt_m < self.min_alt_m and not standing:
             return FenceStatus(
                 False, f"altitude {alt_m:.1f} m below the fence's {self.min_alt_m:g} m"
             )

@@ -169,6 +169,9 @@ class EpisodeParts:
     them, sends them as STATUSTEXT and tells the human input."""
     landing: LandingConfig | None = None
     """Touchdowns the vehicle's land detector recognises (None: send what is asked, as is)."""
+    judge_radius_m: float | None = None
+    """Without a simulator: judge success from the vehicle's reported position, within this of
+    the pad (set with a rendered camera, whose pad is where the estimate puts it); None: unknown."""
 
 
 class EpisodeRunner:
@@ -596,7 +599,7 @@ class EpisodeRunner:
             log.warning("step %d: unusable telemetry (%s); holding", step, exc)
             self._send(HOLD)
             return None, None
-        fence = self.p.fence.check(obs.position_ned_m)
+        fence = self.p.fence.check(obs.position_ned_m, standing=self._touchdown is not None and self._touchdown.engaged)
         if not fence.inside:
             log.warning("geofence: %s; holding and ending the episode", fence.reason)
             self._send(HOLD)
@@ -663,6 +666,11 @@ class EpisodeRunner:
             notes.append("touchdown distance estimated from the vehicle's position relative to home"
                          if self.home.origin is not None else
                          "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)")
+            if self.p.judge_radius_m is not None:
+                success = distance <= self.p.judge_radius_m
+                notes.append("success judged from the vehicle's reported position (the rendered pad is where it puts it)")
+        elif self.p.judge_radius_m is not None and outcome != "touchdown":
+            success = False
         durations = summary.durations_s(self.period_s)
         sim_s = ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0
         return EpisodeRecord(

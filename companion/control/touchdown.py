@@ -10,7 +10,7 @@ The companion does not change what a person or a policy asks for in the air (the
 the policy stay as they are): :class:`TouchdownAssist` sits after the limiter and acts only once
 the evidence says the vehicle stands on a surface: asked down, not moving vertically, for
 ``assist_after_s``, no higher than a little above the pad. Then it asks down at what the
-detector needs, times a margin. Touchdown itself is the vehicle's landed state
+detector needs, times a margin, or at the vehicle's own landing descent if that is faster. Touchdown itself is the vehicle's landed state
 (EXTENDED_SYS_STATE ON_GROUND); only a vehicle that never reports one is judged by this
 evidence (``evidence_touchdown_s`` of it).
 """
@@ -31,16 +31,19 @@ from companion.link.setpoints import VelocitySetpoint
 log = logging.getLogger(__name__)
 PX4_CONTACT_FACTOR = 1.1  # PX4: ground contact needs the commanded descent >= 1.1 x LNDMC_Z_VEL_MAX
 PX4_LNDMC_Z_VEL_MAX_DEFAULT = 0.25
+MAX_LAND_SPEED_M_S = 1.0  # a land speed beyond this is not asked of a vehicle standing on a surface
 RELEASE_CLIMB_M = 0.5  # engaged, and then this much higher: it was not standing after all
 ASKED_DOWN_M_S = 0.02  # a setpoint this slow downwards still counts as someone asking to descend
 
 
 @dataclass(frozen=True)
 class TouchdownNeed:
-    """The slowest commanded descent at which the vehicle's land detector fires (0: any)."""
+    """The slowest commanded descent at which the vehicle's land detector fires (0: any), and
+    the descent its own landing mode asks for (0: unknown)."""
 
     min_descent_m_s: float
     why: str
+    land_speed_m_s: float = 0.0
 
 
 def touchdown_need(autopilot: str, read_param: Callable[[str], float | None],
@@ -59,7 +62,10 @@ def touchdown_need(autopilot: str, read_param: Callable[[str], float | None],
         else:
             said = f"the vehicle's LNDMC_Z_VEL_MAX {value:g}"
         need = PX4_CONTACT_FACTOR * value
-        return TouchdownNeed(need, f"PX4 registers ground contact only at a descent >= 1.1 x {said} m/s = {need:.3f} m/s")
+        land = read_param("MPC_LAND_SPEED")
+        land_m_s = land if land is not None and math.isfinite(land) and 0 < land <= MAX_LAND_SPEED_M_S else 0.0
+        return TouchdownNeed(need, f"PX4 registers ground contact only at a descent >= 1.1 x {said} m/s = {need:.3f} m/s"
+                             + (f"; its own landing asks MPC_LAND_SPEED {land_m_s:g} m/s" if land_m_s else ""), land_m_s)
     if autopilot == "ARDUPILOTMEGA":
         land_speed = read_param("LAND_SPEED")  # cm/s: LAND mode's final descent, for the log
         said = f" (its LAND mode descends at LAND_SPEED {land_speed / 100:.2f} m/s)" if land_speed else ""
@@ -81,7 +87,11 @@ class TouchdownAssist:
     def __init__(self, need: TouchdownNeed, cfg: LandingConfig, period_s: float, pad_height_m: float,
                  home: HomeFrame) -> None:
         self.need, self.cfg, self.home, self.period_s = need, cfg, home, period_s
-        self.wanted_m_s = need.min_descent_m_s * cfg.descent_margin
+        # the vehicle's own landing descent, where it says: on real PX4 SIH 0.33 m/s (1.2 x the
+        # minimum) on the ground left its estimate sinking at 0.1-0.2 m/s, the thrust near hover
+        # and the detector waiting for 10 s and more; at MPC_LAND_SPEED (0.7) its AUTO.LAND lands in 2-4 s
+        self.wanted_m_s = (max(need.min_descent_m_s * cfg.descent_margin, need.land_speed_m_s)
+                           if need.min_descent_m_s > 0 else 0.0)
         self.window_steps = max(2, math.ceil(cfg.assist_after_s / period_s - 1e-9))
         self.evidence_steps = max(1, math.ceil(cfg.evidence_touchdown_s / period_s - 1e-9))
         self.below_height_m = max(0.0, pad_height_m) + cfg.assist_height_m

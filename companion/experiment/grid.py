@@ -204,6 +204,7 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("link", "signing_key_file"): "",
     ("session", "end_of_run"): "land",
     ("session", "arm_timeout_s"): 60.0,
+    ("perception", "render_rate_hz"): 30.0,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; no signing; the run's own SITL is never left by end_of_run; our

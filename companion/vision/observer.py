@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 
 from companion.link.base import VehicleSnapshot
 from companion.vision.camera import CameraSource
@@ -19,6 +20,7 @@ from sitl.frames import Frame
 log = logging.getLogger(__name__)
 WARN_EVERY_S = 5.0
 STALE_AFTER_TICKS = 3  # the camera runs at least at the control rate
+AGES_KEPT = 10_000
 
 
 class Observer:
@@ -36,6 +38,10 @@ class Observer:
         self._last_frame_number: int | None = None
         self._repeats = 0
         self._last_warning_s = -WARN_EVERY_S
+        self.frame_ages_ms: deque[int] = deque(maxlen=AGES_KEPT)
+        """Per observation: the vehicle's time of the telemetry minus the frame's stamp (the
+        telemetry time it was rendered from, or its capture time): how old the picture is."""
+        self._last_frame_ms: int | None = None
 
     def _warn(self, message: str) -> None:
         now = time.monotonic()
@@ -57,6 +63,7 @@ class Observer:
             self._warn("no camera frame for this control step")
             return None
         self.image_size_px = (frame.image.shape[1], frame.image.shape[0])
+        self._last_frame_ms = frame.time_boot_ms
         try:
             return self.detector.detect(frame.image)
         except ValueError as exc:  # a corrupt image: judged not visible
@@ -83,7 +90,10 @@ class Observer:
         """The observation for ``snapshot``; ValueError if its telemetry is not finite.
         ``position_ned_m``: the position relative to home (default: the snapshot's, as sent)."""
         stamp = snapshot.frame_time_boot_ms if lockstep else None
+        self._last_frame_ms = None
         pad = self.detect(stamp)
+        if self._last_frame_ms is not None and self._last_frame_ms > 0:
+            self.frame_ages_ms.append(int(snapshot.time_boot_ms) - self._last_frame_ms)
         return Observation(
             position_ned_m=snapshot.position_ned_m if position_ned_m is None else position_ned_m,
             attitude_rad=snapshot.attitude_rad,

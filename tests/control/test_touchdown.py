@@ -166,3 +166,22 @@ def test_a_takeoff_refused_outside_guided_enters_guided_again_and_retries() -> N
 def test_a_snapshot_keeps_home_through_other_messages() -> None:
     s = snap(home_down=-0.7)
     assert replace(s, armed=False).home_ned_m == (0.0, 0.0, -0.7)
+
+
+def test_standing_asks_the_vehicles_own_landing_descent_when_it_is_faster() -> None:
+    need = touchdown_need("PX4", {"LNDMC_Z_VEL_MAX": 0.25, "MPC_LAND_SPEED": 0.7}.get)
+    assert need.min_descent_m_s == pytest.approx(0.275) and need.land_speed_m_s == 0.7
+    assist = TouchdownAssist(need, LandingConfig(), PERIOD_S, 1.5, HomeFrame())
+    sent = [assist.apply(SLOW, snap(down_m=0.0)) for _ in range(15)]
+    assert sent[-1].down_m_s == pytest.approx(0.7)
+    absurd = touchdown_need("PX4", {"LNDMC_Z_VEL_MAX": 0.25, "MPC_LAND_SPEED": 3.0}.get)
+    assert absurd.land_speed_m_s == 0.0  # beyond 1 m/s is not asked of a vehicle on the ground
+
+
+def test_the_fence_floor_does_not_stop_a_vehicle_standing_on_a_surface() -> None:
+    from companion.control.safety import Geofence
+
+    fence = Geofence(30.0, -1.0, 25.0)
+    assert not fence.check((0.0, 0.0, 1.4)).inside  # 1.4 m below home in the air: outside
+    assert fence.check((0.0, 0.0, 1.4), standing=True).inside  # standing: the estimate drifted
+    assert not fence.check((40.0, 0.0, 1.4), standing=True).inside  # the radius still counts
