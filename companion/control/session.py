@@ -25,7 +25,7 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
-from companion.control.home_frame import HomeFrame
+from companion.link.home import HomeFrame
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
 from companion.control.touchdown import TouchdownAssist, touchdown_need
@@ -193,7 +193,7 @@ class EpisodeRunner:
         self._ask_summary: AskSummary | None = None
         self._touchdown: TouchdownAssist | None = None
         self.home = HomeFrame()
-        """Home for heights and distances (companion/control/home_frame.py), kept over the run."""
+        """Home for heights and distances (companion/link/home.py), kept over the run."""
         self._warned_home = False
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from companion.config import LandingConfig
-from companion.control.home_frame import HomeFrame
+from companion.link.home import HomeFrame
 from companion.link.base import VehicleSnapshot
 from companion.link.setpoints import VelocitySetpoint
 

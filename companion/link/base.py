@@ -44,7 +44,7 @@ class VehicleSnapshot:
     home_ned_m: Vec3 | None = None
     """Home in the vehicle's local frame (HOME_POSITION x, y, z; None until one arrives). On
     PX4 the local origin is where the estimator started, not the ground: heights are taken
-    from here (companion/control/home_frame.py), never from z = 0."""
+    from here (companion/link/home.py), never from z = 0."""
 
     @property
     def in_air(self) -> bool:

@@ -104,6 +104,8 @@ class _FrameSlot:
 class SitlCameraSource:
     """Reads a ``colf://host:port`` stream (the SITL's camera) and reconnects if it drops."""
 
+    vehicle_time_stamps = True  # frames carry the simulation's time_boot_ms of their pose
+
     def __init__(self, uri: str, connect_timeout_s: float = 3.0, reconnect_s: float = 0.5) -> None:
         self.uri = uri
         self.host, self.port = parse_colf_uri(uri)
@@ -193,6 +195,8 @@ class OpenCVCameraSource:
     the vehicle's, so use ``latest()`` (``frame_at`` compares against the source's own clock).
     A video file plays at its own frame rate and the source is dead at its end.
     """
+
+    vehicle_time_stamps = False  # stamped by the capture's clock, not the vehicle's
 
     def __init__(self, spec: int | str, open_timeout_s: float = 3.0) -> None:
         self.spec = spec

@@ -92,7 +92,7 @@ class Observer:
         stamp = snapshot.frame_time_boot_ms if lockstep else None
         self._last_frame_ms = None
         pad = self.detect(stamp)
-        if self._last_frame_ms is not None and self._last_frame_ms > 0:
+        if self._last_frame_ms is not None and getattr(self.camera, "vehicle_time_stamps", False):
             self.frame_ages_ms.append(int(snapshot.time_boot_ms) - self._last_frame_ms)
         return Observation(
             position_ned_m=snapshot.position_ned_m if position_ned_m is None else position_ned_m,

@@ -3,9 +3,8 @@ telemetry (``--camera render``).
 
 Real PX4 SIH and ArduCopter SITL render nothing. This source renders, at ``rate_hz``, the
 downward view our SITL would render for the pose the vehicle reports: LOCAL_POSITION_NED (height
-taken from the ground the vehicle stood on, as the session takes it: companion/control/
-home_frame.py) and ATTITUDE, with the pad at ``pad_ne_m`` of the vehicle's local frame on the
-ground vehicle of ``[sitl.world]`` (static, or driving at its set velocity from the first frame).
+taken from the ground the vehicle stood on, as the session takes it: companion/link/home.py)
+and ATTITUDE, with the pad at ``pad_ne_m`` of the vehicle's local frame on the ground vehicle of ``[sitl.world]`` (static, or driving at its set velocity from the first frame).
 
 Why the companion's own telemetry and not a second MAVLink connection: it is the very estimate
 the observation is built from (a frame and its observation agree on the pose), it needs no
@@ -28,7 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from companion.control.home_frame import HomeFrame
+from companion.link.home import HomeFrame
 from companion.link.base import VehicleSnapshot
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
@@ -41,6 +40,8 @@ RENDER_SCHEME = "render"
 
 class RenderedCamera:
     """A :class:`~companion.vision.camera.CameraSource` rendering from a snapshot provider."""
+
+    vehicle_time_stamps = True  # each frame carries the time_boot_ms of the telemetry it shows
 
     def __init__(self, state: Callable[[], VehicleSnapshot | None], camera: CameraConfig, world: WorldConfig,
                  pad_ne_m: tuple[float, float] = (0.0, 0.0), rate_hz: float = 30.0, stale_after_s: float = 0.5,

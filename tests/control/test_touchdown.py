@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from companion.config import LandingConfig
-from companion.control.home_frame import HomeFrame
+from companion.link.home import HomeFrame
 from companion.control.sequences import take_off
 from companion.control.touchdown import TouchdownAssist, TouchdownNeed, touchdown_need
 from companion.errors import CommandRejected
