@@ -192,6 +192,7 @@ class EpisodeRunner:
         self._landing = False
         self._ask_summary: AskSummary | None = None
         self._touchdown: TouchdownAssist | None = None
+        self._evidence_note: str | None = None
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
         self._warned_home = False
@@ -438,7 +439,10 @@ class EpisodeRunner:
         snap: VehicleSnapshot | None = first
         outcome, version, steps = "timeout", None, 0
         try:
+            self._evidence_note = None
             outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
+            if outcome == "touchdown" and self._evidence_note is not None:
+                notes.append(self._evidence_note)
         except ColError as exc:
             log.error("episode %d ended by an error: %s", episode, exc)
             outcome = "error"
@@ -567,6 +571,13 @@ class EpisodeRunner:
             log.warning("touchdown judged by the companion: the vehicle reports no landed state "
                         "(EXTENDED_SYS_STATE) and has stood on a surface, asked down, for %.1f s",
                         assist.cfg.evidence_touchdown_s)
+            self._evidence_note = "touchdown judged by the companion: no landed state, standing"
+            return True
+        if assist is not None and assist.active and assist.range_contact_long_enough():
+            log.warning("touchdown judged by the companion: its downward rangefinder has read contact for "
+                        "%.1f s while the vehicle, still saying %s, was asked down", assist.cfg.evidence_touchdown_s,
+                        snap.landed_state)
+            self._evidence_note = "touchdown judged by the companion: rangefinder contact (the vehicle still said in air)"
             return True
         return False
 

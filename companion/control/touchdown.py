@@ -32,6 +32,9 @@ log = logging.getLogger(__name__)
 PX4_CONTACT_FACTOR = 1.1  # PX4: ground contact needs the commanded descent >= 1.1 x LNDMC_Z_VEL_MAX
 PX4_LNDMC_Z_VEL_MAX_DEFAULT = 0.25
 MAX_LAND_SPEED_M_S = 1.0  # a land speed beyond this is not asked of a vehicle standing on a surface
+CONTACT_RANGE_M = 0.1  # a downward rangefinder this close to the surface: standing on it
+RANGE_FRESH_S = 0.5
+RANGE_CONTACT_STEPS = 3  # consecutive steps of rangefinder contact (noise of one reading is not contact)  # a rangefinder reading older than this says nothing
 RELEASE_CLIMB_M = 0.5  # engaged, and then this much higher: it was not standing after all
 ASKED_DOWN_M_S = 0.02  # a setpoint this slow downwards still counts as someone asking to descend
 
@@ -107,6 +110,7 @@ class TouchdownAssist:
         self._window: deque[tuple[float, float]] = deque(maxlen=self.window_steps)  # (down m, asked m/s)
         self._engaged_at_m: float | None = None
         self._engaged_steps = 0
+        self._range_steps = 0
 
     @property
     def engaged(self) -> bool:
@@ -115,6 +119,18 @@ class TouchdownAssist:
     def standing_long_enough(self) -> bool:
         """The companion's own evidence of a touchdown (for vehicles with no landed state)."""
         return self.engaged and self._engaged_steps >= self.evidence_steps
+
+    def range_contact_long_enough(self) -> bool:
+        """A downward rangefinder has read contact, asked down, for ``evidence_touchdown_s``: a
+        touchdown by the companion's evidence even while the vehicle's detector, fed a drifting
+        estimate, still says in the air."""
+        return self._range_steps >= self.evidence_steps
+
+    def _range_contact(self, snap: VehicleSnapshot) -> bool:
+        """A fresh downward rangefinder reading at the surface (PX4 SIH has one; its height
+        estimate sank by up to 1 m while the vehicle stood on the ground)."""
+        d = snap.ground_distance_m
+        return d is not None and d <= CONTACT_RANGE_M and snap.received_s - snap.ground_distance_s <= RANGE_FRESH_S
 
     def _standing(self) -> bool:
         if len(self._window) < self.window_steps:
@@ -128,15 +144,17 @@ class TouchdownAssist:
         if not self.active:
             return setpoint
         height = self.home.height(snap)
-        if setpoint.down_m_s <= ASKED_DOWN_M_S or height > self.below_height_m:
+        contact = self._range_contact(snap)
+        if setpoint.down_m_s <= ASKED_DOWN_M_S or (height > self.below_height_m and not contact):
             self.reset()
             return setpoint
         self._window.append((-height, setpoint.down_m_s))
-        if self._engaged_at_m is not None and height > self._engaged_at_m + RELEASE_CLIMB_M:
+        self._range_steps = self._range_steps + 1 if contact else 0
+        if self._engaged_at_m is not None and height > self._engaged_at_m + RELEASE_CLIMB_M and not contact:
             self.reset()  # it climbed away: it was not standing after all
             return setpoint
         if self._engaged_at_m is None:
-            if not self._standing():
+            if not (self._standing() or self._range_steps >= RANGE_CONTACT_STEPS):
                 return setpoint
             self._engaged_at_m = height
             log.info("standing on a surface at %.2f m above home, asked down at %.3f m/s: asking %.3f m/s "

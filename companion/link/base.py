@@ -45,6 +45,10 @@ class VehicleSnapshot:
     """Home in the vehicle's local frame (HOME_POSITION x, y, z; None until one arrives). On
     PX4 the local origin is where the estimator started, not the ground: heights are taken
     from here (companion/link/home.py), never from z = 0."""
+    ground_distance_m: float | None = None
+    """A downward rangefinder's reading (DISTANCE_SENSOR, orientation down), metres to the surface
+    below; None when there is none or its reading is out of its range (PX4 SIH has one)."""
+    ground_distance_s: float = 0.0  # monotonic time of that reading
 
     @property
     def in_air(self) -> bool:

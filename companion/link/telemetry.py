@@ -101,6 +101,16 @@ def _home_position(msg: Any, now_s: float) -> dict[str, Any]:
     return {"home_ned_m": _finite(msg.x, msg.y, msg.z)}
 
 
+def _distance_sensor(msg: Any, now_s: float) -> dict[str, Any]:
+    """A downward rangefinder only; a reading outside [min, max] is no reading (PX4 SIH sends
+    65535-wrapped values while its vehicle presses into the ground)."""
+    if int(msg.orientation) != mavlink.MAV_SENSOR_ROTATION_PITCH_270:
+        return {}
+    cm = int(msg.current_distance)
+    valid = int(msg.min_distance) <= cm <= int(msg.max_distance)
+    return {"ground_distance_m": cm / 100.0 if valid else None, "ground_distance_s": now_s}
+
+
 def _system_time(msg: Any, now_s: float) -> dict[str, Any]:
     return {"time_boot_ms": int(msg.time_boot_ms)}
 
@@ -121,6 +131,7 @@ HANDLERS = {
     "EXTENDED_SYS_STATE": _extended_sys_state,
     "SYSTEM_TIME": _system_time,
     "HOME_POSITION": _home_position,
+    "DISTANCE_SENSOR": _distance_sensor,
 }
 
 

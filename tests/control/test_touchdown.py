@@ -185,3 +185,31 @@ def test_the_fence_floor_does_not_stop_a_vehicle_standing_on_a_surface() -> None
     assert not fence.check((0.0, 0.0, 1.4)).inside  # 1.4 m below home in the air: outside
     assert fence.check((0.0, 0.0, 1.4), standing=True).inside  # standing: the estimate drifted
     assert not fence.check((40.0, 0.0, 1.4), standing=True).inside  # the radius still counts
+
+
+def test_a_rangefinder_at_the_surface_is_standing_at_once_and_a_touchdown_after_the_evidence_time() -> None:
+    assist = _assist(evidence_touchdown_s=1.0)
+    sinking = -0.5
+    for step in range(30):  # PX4 SIH: the estimate sinks at 0.2 m/s while the vehicle stands
+        sinking += 0.2 * PERIOD_S
+        s = replace(snap(down_m=sinking, vz=0.2), ground_distance_m=0.0, ground_distance_s=0.0)
+        sent = assist.apply(SLOW, s)
+        if step == 2:
+            assert assist.engaged and sent.down_m_s == pytest.approx(0.33)  # three readings of contact
+    assert assist.range_contact_long_enough()
+    stale = replace(snap(down_m=-5.0), ground_distance_m=0.0, ground_distance_s=-10.0)
+    fresh = _assist()
+    assert all(fresh.apply(SLOW, stale) == SLOW for _ in range(20))  # an old reading says nothing
+
+
+def test_the_rangefinder_reading_is_folded_only_from_a_downward_sensor_in_its_range() -> None:
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from companion.link.telemetry import _distance_sensor
+
+    def msg(cm: int, orientation: int = 25) -> object:
+        return mavlink.MAVLink_distance_sensor_message(0, 0, 10000, cm, 0, 0, orientation, 0)
+
+    assert _distance_sensor(msg(48), 3.0) == {"ground_distance_m": 0.48, "ground_distance_s": 3.0}
+    assert _distance_sensor(msg(65535), 3.0)["ground_distance_m"] is None  # out of range: no reading
+    assert _distance_sensor(msg(48, orientation=0), 3.0) == {}  # forward-looking: not the ground

@@ -474,6 +474,7 @@ def test_each_message_changes_exactly_the_fields_its_handler_names() -> None:
         "EXTENDED_SYS_STATE": _decoded(enc.extended_sys_state_encode(0, 2), enc),
         "SYSTEM_TIME": _decoded(enc.system_time_encode(0, 600), enc),
         "HOME_POSITION": _decoded(enc.home_position_encode(0, 0, 0, 0.0, 0.0, -0.7, [1, 0, 0, 0], 0, 0, 0), enc),
+        "DISTANCE_SENSOR": _decoded(enc.distance_sensor_encode(0, 0, 10000, 48, 0, 0, 25, 0), enc),
     }
     assert messages.keys() == HANDLERS.keys()
     names = {f.name for f in dataclasses.fields(VehicleSnapshot)}
