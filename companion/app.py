@@ -39,7 +39,6 @@ from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect, dialect_for
-from companion.vision.rendered import RENDER_SCHEME, RenderedCamera
 from companion.link.signing import read_key
 from companion.run_folder import prepare_run_dir
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
@@ -47,6 +46,7 @@ from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
+from companion.vision.rendered import RENDER_SCHEME, RenderedCamera
 
 if TYPE_CHECKING:
     from companion.pictures.recorder import FlightRecorder

@@ -25,7 +25,6 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
-from companion.link.home import HomeFrame
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
 from companion.control.touchdown import TouchdownAssist, touchdown_need
@@ -36,6 +35,7 @@ from companion.learning.ensemble import EnsembleSnapshot, disagreement
 from companion.learning.snapshot import PolicySnapshot
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
+from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
 from companion.simulator import SimulatorClient
 from companion.vision.observation import Observation

@@ -24,8 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from companion.config import LandingConfig
-from companion.link.home import HomeFrame
 from companion.link.base import VehicleSnapshot
+from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
 
 log = logging.getLogger(__name__)

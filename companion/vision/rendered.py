@@ -27,8 +27,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from companion.link.home import HomeFrame
 from companion.link.base import VehicleSnapshot
+from companion.link.home import HomeFrame
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
 from sitl.frames import Frame

@@ -8,12 +8,12 @@ from dataclasses import replace
 import pytest
 
 from companion.config import LandingConfig
-from companion.link.home import HomeFrame
 from companion.control.sequences import take_off
 from companion.control.touchdown import TouchdownAssist, TouchdownNeed, touchdown_need
 from companion.errors import CommandRejected
 from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT
+from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
 from tests.control.test_sequences import DialectLink
 
