@@ -113,17 +113,20 @@ class RenderedCamera:
         snap = self._state()
         now = self._clock()
         if snap is None or not (snap.position_valid and snap.attitude_valid):
-            return self._starved("no position and attitude from the vehicle yet")
+            self._starved("no position and attitude from the vehicle yet")
+            return None
         self.home.update(snap)
         if now - snap.received_s > self.stale_after_s:
-            return self._starved(f"no telemetry for {now - snap.received_s:.1f} s")
+            self._starved(f"no telemetry for {now - snap.received_s:.1f} s")
+            return None
         if snap.time_boot_ms == self._last_rendered_ms:
             return None
         start = time.perf_counter()
         try:
             frame = self.render(snap)
         except ValueError as exc:  # a non-finite pose: no picture of it
-            return self._starved(f"unusable pose: {exc}")
+            self._starved(f"unusable pose: {exc}")
+            return None
         self.render_times_s.append(time.perf_counter() - start)
         if len(self.render_times_s) > 10_000:
             del self.render_times_s[:5_000]
