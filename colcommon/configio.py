@@ -55,3 +55,16 @@ def section(data: dict[str, Any], *path: str) -> dict[str, Any]:
         if not isinstance(node, dict):
             raise ConfigError(f"[{'.'.join(path)}] must be a TOML table")
     return node
+
+
+def with_experiment_task(data: dict[str, Any], tables: dict[str, Any],
+                         task: dict[tuple[str, str], object]) -> dict[str, Any]:
+    """``tables`` (the ``[companion]`` or ``[sitl]`` part of ``data``) with ``task``'s settings
+    filled in where an experiment file (one with an ``[experiment]`` table) does not name them:
+    settings added after the experiments were designed, at the values their task was run with."""
+    if "experiment" not in data:
+        return tables
+    out = {name: dict(values) if isinstance(values, dict) else values for name, values in tables.items()}
+    for (table, key), value in task.items():
+        out.setdefault(table, {}).setdefault(key, value)
+    return out

@@ -7,11 +7,11 @@ Each section belongs to the module named in its docstring.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field, PositiveInt, model_validator
 
-from colcommon.configio import Section, build, read_toml, section
+from colcommon.configio import Section, build, read_toml, section, with_experiment_task
 from companion.errors import ConfigError
 
 KNOWN_TOP_LEVEL = {"sitl", "companion", "experiment"}
@@ -307,7 +307,7 @@ def load_companion_config(path: str | Path | None = None) -> CompanionConfig:
             f"{path}: unknown top-level table(s) {sorted(unknown)}; expected some of "
             f"{sorted(KNOWN_TOP_LEVEL)}"
         )
-    return build(CompanionConfig, experiment_task(data, section(data, "companion")), f"[companion] in {path}")
+    return build(CompanionConfig, with_experiment_task(data, section(data, "companion"), EXPERIMENT_TASK), f"[companion] in {path}")
 
 
 EXPERIMENT_TASK: dict[tuple[str, str], object] = {("landing", "touchdown_assist"): False}
@@ -316,12 +316,3 @@ was run: an experiment file (one with an ``[experiment]`` table) that does not n
 these, so its committed results stay what its trials give. Our SITL keeps the old land detector
 for such files too (sitl/config.py), and with it no assist is needed."""
 
-
-def experiment_task(data: dict[str, Any], companion: dict[str, Any]) -> dict[str, Any]:
-    """``[companion]`` of ``data`` with :data:`EXPERIMENT_TASK` filled in for an experiment file."""
-    if "experiment" not in data:
-        return companion
-    out = {table: dict(values) if isinstance(values, dict) else values for table, values in companion.items()}
-    for (table, key), value in EXPERIMENT_TASK.items():
-        out.setdefault(table, {}).setdefault(key, value)
-    return out

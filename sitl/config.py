@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
-from colcommon.configio import Section, build, read_toml, section
+from colcommon.configio import Section, build, read_toml, section, with_experiment_task
 from colcommon.errors import ConfigError
 
 KNOWN_TOP_LEVEL = {"sitl", "companion", "experiment"}
@@ -229,7 +229,7 @@ def load_sitl_config(path: str | Path | None = None) -> SitlConfig:
         return SitlConfig()
     data = read_toml(path)
     check_top_level(data, str(path))
-    return build(SitlConfig, experiment_task(data, section(data, "sitl")), f"[sitl] in {path}")
+    return build(SitlConfig, with_experiment_task(data, section(data, "sitl"), EXPERIMENT_TASK), f"[sitl] in {path}")
 
 
 EXPERIMENT_TASK: dict[tuple[str, str], object] = {
@@ -242,12 +242,3 @@ offset, 2026-12), with the values their task was run with: an experiment file (o
 these, so its committed results stay what its trials give. The companion does the same for its
 touchdown assist (companion.config.EXPERIMENT_TASK)."""
 
-
-def experiment_task(data: dict[str, Any], sitl: dict[str, Any]) -> dict[str, Any]:
-    """``[sitl]`` of ``data`` with :data:`EXPERIMENT_TASK` filled in for an experiment file."""
-    if "experiment" not in data:
-        return sitl
-    out = {table: dict(values) if isinstance(values, dict) else values for table, values in sitl.items()}
-    for (table, key), value in EXPERIMENT_TASK.items():
-        out.setdefault(table, {}).setdefault(key, value)
-    return out

@@ -27,12 +27,15 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
+from companion.simulator import start_sitl
 from companion.testing.autopilots import (
     RunningAutopilot,
     find_autopilots,
+    free_udp_port,
     start_ardupilot,
     start_px4,
 )
+from companion.testing.conformance import Outcome, differences, fly_script
 
 pytestmark = [pytest.mark.autopilot, pytest.mark.timeout(900)]
 COL = str(Path(sys.executable).with_name("col"))
@@ -76,6 +79,8 @@ class Scenario:
     after_interrupt: Watched | None = None
     error: str | None = None
     log_tail: str = ""
+    conformance: Outcome | None = None  # the scripted flight, before the companion flies
+    ours: Outcome | None = None  # the same script against our SITL's personality
 
 
 def _records(run_dir: Path) -> list[dict[str, Any]]:
@@ -144,6 +149,7 @@ def _eval_interrupted(ap: RunningAutopilot, config: Path, checkpoint: Path,
 
 def run_scenario(scenario: Scenario, ap: RunningAutopilot, config: Path, work: Path) -> None:
     try:
+        scenario.conformance = fly_script(ap.connection, slow_s=20.0, fast_s=20.0)
         expert_dir = work / "expert"
         scenario.expert = _fly_expert(ap, config, expert_dir)
         scenario.expert_records = _records(expert_dir)
@@ -173,10 +179,21 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
     config = work / "short.toml"
     config.write_text(SHORT)
     started = {"px4": start_px4(root, work / "px4"), "ardupilot": start_ardupilot(root, work / "ardupilot")}
+    ours_config = work / "ours.toml"
+    ours_config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
+    ours = {}
+    for kind in KINDS:  # our SITL as each, for the conformance script (started here: it lives as long as this thread)
+        port = free_udp_port()
+        ours[kind] = (start_sitl(port, clock="realtime", config=ours_config, camera=False, timeout_s=120.0,
+                                 extra_args=["--autopilot", kind]), f"udpin:127.0.0.1:{port}")
     results = {kind: Scenario(kind) for kind in KINDS}
+
+    def fly_ours(kind: str) -> None:
+        results[kind].ours = fly_script(ours[kind][1], slow_s=20.0, fast_s=20.0)
+
     try:
         threads = [threading.Thread(target=run_scenario, args=(results[k], started[k], config, work / f"run-{k}"))
-                   for k in KINDS]
+                   for k in KINDS] + [threading.Thread(target=fly_ours, args=(k,)) for k in KINDS]
         for t in threads:
             t.start()
         for t in threads:
@@ -185,6 +202,8 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
     finally:
         for ap in started.values():
             ap.stop()
+        for sitl, _ in ours.values():
+            sitl.stop()
 
 
 def _why(s: Scenario) -> str:
@@ -225,3 +244,17 @@ def test_eval_of_a_checkpoint_flies_and_ctrl_c_lands_then_disarms(scenarios: dic
     landing = LANDING_MODES[kind]
     assert any(m in landing for m in seen.modes), (seen, out[-2000:])
     assert seen.disarmed_after_s is not None, (seen, out[-2000:])
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_our_sitl_answers_the_scripted_flight_as_the_real_autopilot_does(scenarios: dict[str, Scenario],
+                                                                         kind: str) -> None:
+    """Arm, take off, offboard, a slow descent (0.26 m/s) then 0.33 m/s, disarm: the same ACKs, the
+    same mode, the same landed / not landed at each descent, the same disarm (docs/link.md)."""
+    s = scenarios[kind]
+    real, ours = s.conformance, s.ours
+    assert real is not None and ours is not None, _why(s)
+    assert not real.errors and not ours.errors, (real, ours)
+    assert differences(real, ours) == [], (real.to_dict(), ours.to_dict())
+    if kind == "px4":  # the rule the touchdown assist exists for
+        assert real.landed_at_slow_descent_s is None and real.landed_at_fast_descent_s is not None, real
