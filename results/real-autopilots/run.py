@@ -1,7 +1,8 @@
 """The done-when of the real-autopilot work: `col fly --pilot expert --episodes 5` on a freshly
 started real PX4 SIH and a freshly started real ArduCopter SITL, repeated on fresh instances.
 
-    python results/real-autopilots/run.py --repeats 5 --out results/real-autopilots
+    python results/real-autopilots/run.py --repeats 5 --out results/real-autopilots/still
+    python results/real-autopilots/run.py --repeats 1 --episodes 20 --camera render --out results/real-autopilots/render
 
 Each repeat starts both autopilots at once (their own ports, fresh folders), flies them side by
 side, and stops them; the camera is a still video of the pad from 1 m above it (the autopilots
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -27,15 +29,28 @@ CONFIG = """
 start_height_above_pad_m = 3.0
 start_xy_range_m = 1.0
 """
+RENDER = """
+[companion.session]
+start_height_above_pad_m = 3.0
+start_xy_range_m = 1.0
+pad_ned_m = [0.0, 0.0, 0.0]  # the pad on the autopilot's own ground
+
+[companion.perception]
+camera = "render"  # our renderer driven by the vehicle's telemetry
+
+[sitl.world]
+vehicle_height_m = 0.0
+"""
 
 
-def fly(kind: str, root: Path, work: Path, camera: Path, config: Path, episodes: int) -> list[dict]:
+def fly(kind: str, root: Path, work: Path, camera: Path | None, config: Path, episodes: int) -> list[dict]:
     ap = (start_px4 if kind == "px4" else start_ardupilot)(root, work / kind)
     run_dir = work / f"run-{kind}"
     col = str(Path(sys.executable).with_name("col"))
     try:
-        done = subprocess.run([col, "fly", "--pilot", "expert", "--episodes", str(episodes), "--connect", ap.connection,
-                               "--camera", str(camera), "--config", str(config), "--run-dir", str(run_dir)],
+        cmd = [col, "fly", "--pilot", "expert", "--episodes", str(episodes), "--connect", ap.connection,
+               "--config", str(config), "--run-dir", str(run_dir)]
+        done = subprocess.run(cmd + (["--camera", str(camera)] if camera is not None else []),
                               capture_output=True, text=True, timeout=1800, stdin=subprocess.DEVNULL)
     finally:
         ap.stop()
@@ -53,6 +68,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--camera", choices=("still", "render"), default="still",
+                        help="still: a video of the pad from 1 m; render: the pad world rendered from telemetry")
+    parser.add_argument("--autopilots", default="px4,ardupilot")
     args = parser.parse_args()
     root, why = find_autopilots()
     if root is None:
@@ -60,28 +78,36 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="real-autopilots-"))
     config = work / "config.toml"
-    config.write_text(CONFIG)
-    camera = write_still_pad_video(work / "pad.mp4", height_above_pad_m=1.0, seconds=1200.0)
+    text = CONFIG if args.camera == "still" else RENDER
+    config.write_text(text)
+    camera = write_still_pad_video(work / "pad.mp4", height_above_pad_m=1.0, seconds=1200.0) if args.camera == "still" else None
+    kinds = tuple(k for k in args.autopilots.split(",") if k)
     lines, summary = [], []
     for repeat in range(args.repeats):
         results: dict[str, list[dict]] = {}
         rep_dir = work / f"repeat-{repeat}"
 
         threads = [threading.Thread(target=one, args=(results, k, root, rep_dir, camera, config, args.episodes))
-                   for k in ("px4", "ardupilot")]
+                   for k in kinds]
         for t in threads:
             t.start()
         for t in threads:
             t.join()
         for kind, records in sorted(results.items()):
             outcomes = [r["outcome"] for r in records]
+            judged = [r["success"] for r in records if r["success"] is not None]
+            est = [r["touchdown_distance_m"] for r in records if r.get("touchdown_distance_m") is not None]
+            true = [r["true_touchdown_distance_m"] for r in records if r.get("true_touchdown_distance_m") is not None]
             summary.append({"repeat": repeat, "autopilot": kind, "episodes": len(records),
                             "touchdowns": outcomes.count("touchdown"), "fence": outcomes.count("fence"),
+                            "on_pad": sum(judged) if judged else None,
+                            "distance_m_median": round(statistics.median(est), 3) if est else None,
+                            "true_distance_m_median": round(statistics.median(true), 3) if true else None,
                             "outcomes": outcomes})
             lines += [dict(r, repeat=repeat, autopilot=kind) for r in records]
             print(json.dumps(summary[-1]), flush=True)
     (args.out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
-    (args.out / "config.toml").write_text(CONFIG.lstrip())
+    (args.out / "config.toml").write_text(text.lstrip())
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(json.dumps({"runs": len(summary), "all_at_least_4": all(s["touchdowns"] >= 4 for s in summary),
                       "fence_stops": sum(s["fence"] for s in summary)}))
