@@ -133,6 +133,7 @@ def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | No
     n, k, judged = len(result.records), result.successes, result.judged
     lo, hi = wilson_interval(k, judged)
     distances = [r.touchdown_distance_m for r in result.records if r.touchdown_distance_m is not None]
+    true = [r.true_touchdown_distance_m for r in result.records if r.true_touchdown_distance_m is not None]
     return {
         "episodes": n,
         "successes": k if judged else None,
@@ -140,6 +141,7 @@ def evaluate(cfg, checkpoint: Path, episodes: int, seed: int, run_dir: Path | No
         "success_unknown": n - judged,
         "ci95": [round(lo, 4), round(hi, 4)] if judged else None,
         "touchdown_distance_m_median": round(statistics.median(distances), 3) if distances else None,
+        "true_touchdown_distance_m_median": round(statistics.median(true), 3) if true else None,
         "touchdowns": len(distances),
         "timeouts": sum(r.outcome == "timeout" for r in result.records),
         "run_dir": str(result.run_dir),

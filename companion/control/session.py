@@ -37,6 +37,7 @@ from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
+from companion.link.truth import ask_for_truth, true_distance_m
 from companion.simulator import SimulatorClient
 from companion.vision.observation import Observation
 from companion.vision.observer import Observer
@@ -119,6 +120,9 @@ class EpisodeRecord:
     asked, the steps from each request until they handed back."""
     ask_threshold: float | None = None
     """The disagreement threshold of this episode (None: not asking)."""
+    true_touchdown_distance_m: float | None = None
+    """Without a simulator: the touchdown's true distance from the pad where the autopilot's SITL
+    sends its true position (companion/link/truth.py); the estimate's is touchdown_distance_m."""
 
     def to_json_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -193,6 +197,7 @@ class EpisodeRunner:
         self._ask_summary: AskSummary | None = None
         self._touchdown: TouchdownAssist | None = None
         self._evidence_note: str | None = None
+        self._asked_truth = False
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
         self._warned_home = False
@@ -370,6 +375,9 @@ class EpisodeRunner:
         snap = self._next_snapshot()
         if snap is None:
             raise LinkError("no telemetry: cannot start the episode")
+        if not self._asked_truth:
+            self._asked_truth = True
+            ask_for_truth(self.p.link, snap.autopilot)
         if not snap.in_air:
             take_off(self.p.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
             for _ in range(int(30 * cfg.control_rate_hz)):
@@ -659,7 +667,7 @@ class EpisodeRunner:
                 notes: list[str]) -> EpisodeRecord:
         summary = self.arbiter.summary()
         ask = self._ask_summary
-        success = distance = speed = None
+        success = distance = speed = true_distance = None
         if self.p.simulator is not None:
             try:
                 td = self.p.simulator.truth().get("touchdown")
@@ -677,6 +685,7 @@ class EpisodeRunner:
             notes.append("touchdown distance estimated from the vehicle's position relative to home"
                          if self.home.origin is not None else
                          "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)")
+            true_distance = true_distance_m(snap, (pad[0], pad[1]))
             if self.p.judge_radius_m is not None:
                 success = distance <= self.p.judge_radius_m
                 notes.append("success judged from the vehicle's reported position (the rendered pad is where it puts it)")
@@ -695,6 +704,7 @@ class EpisodeRunner:
             sim_time_s=round(sim_s, 3), wall_time_s=round(time.monotonic() - wall0, 3), notes=tuple(notes),
             requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
             supervised_steps=self._supervised_steps(phase, steps),
+            true_touchdown_distance_m=None if true_distance is None else round(true_distance, 4),
             ask_threshold=None if self.p.asker is None or not math.isfinite(self.p.asker.threshold)
             else round(self.p.asker.threshold, 8),
         )

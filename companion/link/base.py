@@ -49,6 +49,11 @@ class VehicleSnapshot:
     """A downward rangefinder's reading (DISTANCE_SENSOR, orientation down), metres to the surface
     below; None when there is none or its reading is out of its range (PX4 SIH has one)."""
     ground_distance_s: float = 0.0  # monotonic time of that reading
+    truth_lat_lon_deg: tuple[float, float] | None = None
+    """A simulator's true position, where the autopilot's SITL sends one (PX4 SIH:
+    HIL_STATE_QUATERNION; ArduPilot: SIMSTATE); never on a real vehicle."""
+    origin_lat_lon_deg: tuple[float, float] | None = None
+    """Where the local frame's origin is (GPS_GLOBAL_ORIGIN), to put the pad on the true map."""
 
     @property
     def in_air(self) -> bool:

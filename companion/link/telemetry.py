@@ -111,6 +111,22 @@ def _distance_sensor(msg: Any, now_s: float) -> dict[str, Any]:
     return {"ground_distance_m": cm / 100.0 if valid else None, "ground_distance_s": now_s}
 
 
+def _lat_lon(lat_e7: int, lon_e7: int) -> tuple[float, float] | None:
+    return None if lat_e7 == 0 and lon_e7 == 0 else (lat_e7 / 1e7, lon_e7 / 1e7)
+
+
+def _hil_state(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"truth_lat_lon_deg": _lat_lon(int(msg.lat), int(msg.lon))}
+
+
+def _simstate(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"truth_lat_lon_deg": _lat_lon(int(msg.lat), int(msg.lng))}
+
+
+def _global_origin(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"origin_lat_lon_deg": _lat_lon(int(msg.latitude), int(msg.longitude))}
+
+
 def _system_time(msg: Any, now_s: float) -> dict[str, Any]:
     return {"time_boot_ms": int(msg.time_boot_ms)}
 
@@ -132,6 +148,9 @@ HANDLERS = {
     "SYSTEM_TIME": _system_time,
     "HOME_POSITION": _home_position,
     "DISTANCE_SENSOR": _distance_sensor,
+    "HIL_STATE_QUATERNION": _hil_state,
+    "SIMSTATE": _simstate,
+    "GPS_GLOBAL_ORIGIN": _global_origin,
 }
 
 

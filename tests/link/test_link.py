@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink
 
 import companion.link.px4_modes as px4_modes
@@ -434,6 +435,12 @@ def _encoder(system: int = 1, component: int = 1):
     return mavlink.MAVLink(None, srcSystem=system, srcComponent=component)
 
 
+def _ardupilot_decoded(msg):  # type: ignore[no-untyped-def]
+    """An ArduPilot-dialect message as the link parses it (the link speaks ardupilotmega)."""
+    enc = ardupilotmega.MAVLink(None, srcSystem=1, srcComponent=1)
+    return ardupilotmega.MAVLink(None).decode(bytearray(msg.pack(enc)))
+
+
 def _decoded(msg, encoder):
     """A message as it arrives: packed and parsed, so source ids are set."""
     return mavlink.MAVLink(None).decode(bytearray(msg.pack(encoder)))
@@ -475,6 +482,11 @@ def test_each_message_changes_exactly_the_fields_its_handler_names() -> None:
         "SYSTEM_TIME": _decoded(enc.system_time_encode(0, 600), enc),
         "HOME_POSITION": _decoded(enc.home_position_encode(0, 0, 0, 0.0, 0.0, -0.7, [1, 0, 0, 0], 0, 0, 0), enc),
         "DISTANCE_SENSOR": _decoded(enc.distance_sensor_encode(0, 0, 10000, 48, 0, 0, 25, 0), enc),
+        "HIL_STATE_QUATERNION": _decoded(enc.hil_state_quaternion_encode(0, [1, 0, 0, 0], 0, 0, 0, 473977486, 85455961,
+                                                                          489267, 0, 0, 0, 0, 0, 0, 0, 0), enc),
+        "SIMSTATE": _ardupilot_decoded(ardupilotmega.MAVLink_simstate_message(0, 0, 0, 0, 0, 0, 0, 0, 0, -353632621,
+                                                                              1491652374)),
+        "GPS_GLOBAL_ORIGIN": _decoded(enc.gps_global_origin_encode(473977486, 85455961, 488000), enc),
     }
     assert messages.keys() == HANDLERS.keys()
     names = {f.name for f in dataclasses.fields(VehicleSnapshot)}
