@@ -32,6 +32,12 @@ def cell(value: object) -> str:
     return str(value)
 
 
+def cell_of(outcome: dict, key: str) -> str:
+    if key == "landed_at_fast_descent_s" and outcome.get("landed_at_slow_descent_s") is not None:
+        return "(landed already)"
+    return cell(outcome.get(key))
+
+
 def main() -> None:
     data = json.loads(Path(sys.argv[1]).read_text())
     out = data["outcomes"]
@@ -39,7 +45,7 @@ def main() -> None:
         real, ours = out[f"real {family}"], out[f"ours {family}"]
         print(f"| {family} | real | ours |\n| --- | --- | --- |")
         for label, key in ROWS:
-            print(f"| {label} | {cell(real.get(key))} | {cell(ours.get(key))} |")
+            print(f"| {label} | {cell_of(real, key)} | {cell_of(ours, key)} |")
         diffs = data["differences"][family]
         print(f"\nDifferences that count ({family}): {'; '.join(diffs) if diffs else 'none'}\n")
 
