@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink
 
 import companion.link.px4_modes as px4_modes
@@ -176,7 +177,7 @@ class MavlinkLink(VehicleLink):
         rates_hz = self.default_rates_hz() if rates_hz is None else rates_hz
         results: dict[str, str] = {}
         for name, hz in rates_hz.items():
-            msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{name}", None)
+            msg_id = getattr(ardupilotmega, f"MAVLINK_MSG_ID_{name}", None)
             if msg_id is None or not math.isfinite(hz) or hz < 0:
                 raise ValueError(f"cannot request {name} at {hz} Hz: unknown message or bad rate")
             params = [float(msg_id), 1e6 / hz if hz > 0 else -1.0]
@@ -423,8 +424,9 @@ def _is_complaint(msg: Any) -> bool:
 
 
 def message_id(message_name: str) -> int:
-    """The MAVLink id of a common-dialect message name; ValueError with the fix otherwise."""
-    msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{message_name}", None)
+    """The MAVLink id of a message name of the link's dialect (common.xml and ArduPilot's
+    ardupilotmega.xml, which includes it); ValueError with the fix otherwise."""
+    msg_id = getattr(ardupilotmega, f"MAVLINK_MSG_ID_{message_name}", None)
     if not isinstance(msg_id, int):
         raise ValueError(
             f"unknown MAVLink message {message_name!r}; use its name from common.xml, "

@@ -30,7 +30,7 @@ def ask_for_truth(link: VehicleLink, autopilot: str) -> None:
     try:
         result = link.request_rates({name: TRUTH_RATE_HZ}).get(name)
         origin = link.request_message("GPS_GLOBAL_ORIGIN", timeout_s=2.0)
-    except ColError as exc:
+    except (ColError, ValueError) as exc:  # nothing to fly for: said, and the run goes on
         log.info("no true position from the vehicle: %s", exc)
         return
     log.info("true position: %s %s, local origin %s", name, result, "known" if origin else "not sent")

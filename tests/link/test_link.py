@@ -704,3 +704,13 @@ def test_mavsdk_request_message_finds_the_sitl_camera(realtime_sitl) -> None:
         assert link.request_message("VIDEO_STREAM_INFORMATION", 42, timeout_s=1.0) is None
         with pytest.raises(CommandRejected):
             link.request_message("MISSION_CURRENT", CAMERA, timeout_s=3.0)
+
+
+def test_an_ardupilot_dialect_message_can_be_requested_and_asking_for_truth_never_stops_a_run(fake, make_link) -> None:
+    from companion.link.truth import ask_for_truth
+
+    link = make_link()
+    assert link.request_rates({"SIMSTATE": 5.0})["SIMSTATE"] in ("ACCEPTED", "UNSUPPORTED", "DENIED", "FAILED", "TIMEOUT")
+    assert fake.requested_intervals_us().get(164) == pytest.approx(200_000)  # SIMSTATE is ardupilotmega's
+    ask_for_truth(link, "ARDUPILOTMEGA")  # the fake answers no GPS_GLOBAL_ORIGIN: logged, not raised
+    ask_for_truth(link, "PX4")
