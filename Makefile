@@ -20,11 +20,13 @@ $(STAMP): pyproject.toml
 setup-browser:
 	command -v chromium >/dev/null 2>&1 || (apt-get update -q && apt-get install -y -q chromium)
 
+# Two workers: most of the suite waits on real-time flights (real autopilots, real-time SITL),
+# so two at once take about 10 minutes where one took 16 on the 2-core machine.
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2
 
 test-all: setup
-	$(PY) -m pytest -q -m ''
+	$(PY) -m pytest -q -n 2 -m ''
 
 demo: setup
 	$(VENV)/bin/col demo

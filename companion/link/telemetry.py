@@ -101,12 +101,18 @@ def _home_position(msg: Any, now_s: float) -> dict[str, Any]:
     return {"home_ned_m": _finite(msg.x, msg.y, msg.z)}
 
 
+UINT16_WRAP_FROM = 65536 - 100  # readings of -1 to -100 cm as PX4 SIH's uint16 field carries them
+
+
 def _distance_sensor(msg: Any, now_s: float) -> dict[str, Any]:
-    """A downward rangefinder only; a reading outside [min, max] is no reading (PX4 SIH sends
-    65535-wrapped values while its vehicle presses into the ground)."""
+    """A downward rangefinder only; a reading outside [min, max] is no reading, except PX4 SIH's
+    wrapped negative distances (65535 = -1 cm) while its vehicle presses into the ground: those
+    are the surface itself."""
     if int(msg.orientation) != mavlink.MAV_SENSOR_ROTATION_PITCH_270:
         return {}
     cm = int(msg.current_distance)
+    if cm >= UINT16_WRAP_FROM:  # a small negative distance, wrapped: at (or pressed into) the surface
+        return {"ground_distance_m": 0.0, "ground_distance_s": now_s}
     valid = int(msg.min_distance) <= cm <= int(msg.max_distance)
     return {"ground_distance_m": cm / 100.0 if valid else None, "ground_distance_s": now_s}
 

@@ -211,5 +211,6 @@ def test_the_rangefinder_reading_is_folded_only_from_a_downward_sensor_in_its_ra
         return mavlink.MAVLink_distance_sensor_message(0, 0, 10000, cm, 0, 0, orientation, 0)
 
     assert _distance_sensor(msg(48), 3.0) == {"ground_distance_m": 0.48, "ground_distance_s": 3.0}
-    assert _distance_sensor(msg(65535), 3.0)["ground_distance_m"] is None  # out of range: no reading
+    assert _distance_sensor(msg(65519), 3.0)["ground_distance_m"] == 0.0  # PX4 SIH's -17 cm, wrapped: the surface
+    assert _distance_sensor(msg(20000), 3.0)["ground_distance_m"] is None  # beyond its range: no reading
     assert _distance_sensor(msg(48, orientation=0), 3.0) == {}  # forward-looking: not the ground
