@@ -92,7 +92,7 @@ class AutopilotConfig(Section):
     )
     # Land detector (sitl/control.py Px4LandDetector; docs/sitl.md "Land detector").
     land_detector: Literal["px4", "contact"] = Field(
-        "px4", description="px4: PX4's LNDMC stages (commanded descent, stillness, low thrust); contact: landed at the first settling contact (before 2026-03)"
+        "px4", description="px4: PX4's LNDMC stages (commanded descent, stillness, low thrust); contact: landed at the first settling contact (before 2026-12; experiment files keep it)"
     )
     land_z_vel_max_m_s: float = Field(
         0.25, gt=0, description="LNDMC_Z_VEL_MAX: still below this climb rate; ground contact needs a commanded descent of 1.1x it"
