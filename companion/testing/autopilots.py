@@ -18,6 +18,7 @@ import os
 import signal
 import socket
 import subprocess
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,6 +83,7 @@ class RunningAutopilot:
         close = getattr(self._log, "close", None)
         if close is not None:
             close()
+        _release(self.kind, self.instance)
 
     def __enter__(self) -> RunningAutopilot:
         return self
@@ -109,20 +111,42 @@ def _tcp_free(port: int) -> bool:
     return True
 
 
+_CLAIMED: set[tuple[str, int]] = set()
+_CLAIM_LOCK = threading.Lock()
+"""Instances handed out in this process and not stopped yet: two started at once would both
+find the same ports free before either binds them (ArduCopter then fails: "bind failed on
+port 5762")."""
+
+
+def _claim(kind: str, instance: int) -> bool:
+    with _CLAIM_LOCK:
+        if (kind, instance) in _CLAIMED:
+            return False
+        _CLAIMED.add((kind, instance))
+        return True
+
+
+def _release(kind: str, instance: int) -> None:
+    with _CLAIM_LOCK:
+        _CLAIMED.discard((kind, instance))
+
+
 def free_px4_instance(first: int = 0, last: int = 9) -> int:
-    """The first PX4 instance whose ports (its own and the ones it sends to) are all free."""
+    """The first PX4 instance whose ports (its own and the ones it sends to) are all free,
+    claimed for this process until its autopilot stops."""
     for i in range(first, last + 1):
-        if all(_udp_free(p + i) for p in (*PX4_LOCAL_PORTS, PX4_OFFBOARD_PORT, PX4_GCS_PORT)):
+        if all(_udp_free(p + i) for p in (*PX4_LOCAL_PORTS, PX4_OFFBOARD_PORT, PX4_GCS_PORT)) and _claim("px4", i):
             return i
     raise RuntimeError(f"no free PX4 instance in {first}..{last}: ports 14540-14590 + instance are taken")
 
 
 def free_ardupilot_instance(first: int = 0, last: int = 9) -> int:
-    """The first ArduCopter instance whose TCP serial ports and simulator ports are free."""
+    """The first ArduCopter instance whose TCP serial ports and simulator ports are free,
+    claimed for this process until its autopilot stops."""
     for i in range(first, last + 1):
         tcp = [ARDUPILOT_TCP_PORT + 10 * i + k for k in (0, 2, 3)]
         udp = [p + 10 * i for p in ARDUPILOT_SIM_PORTS]
-        if all(_tcp_free(p) for p in tcp) and all(_udp_free(p) for p in udp):
+        if all(_tcp_free(p) for p in tcp) and all(_udp_free(p) for p in udp) and _claim("ardupilot", i):
             return i
     raise RuntimeError(f"no free ArduCopter instance in {first}..{last}")
 

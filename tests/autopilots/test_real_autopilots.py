@@ -263,3 +263,19 @@ def test_our_sitl_answers_the_scripted_flight_as_the_real_autopilot_does(scenari
     assert differences(real, ours) == [], (real.to_dict(), ours.to_dict())
     if kind == "px4":  # the rule the touchdown assist exists for
         assert real.landed_at_slow_descent_s is None and real.landed_at_fast_descent_s is not None, real
+
+
+def test_instances_handed_out_at_once_never_share_ports() -> None:
+    """Two autopilots started at once found the same ports free before either bound them."""
+    from companion.testing import autopilots
+
+    first = autopilots.free_ardupilot_instance()
+    second = autopilots.free_ardupilot_instance()
+    px4_a, px4_b = autopilots.free_px4_instance(), autopilots.free_px4_instance()
+    try:
+        assert first != second and px4_a != px4_b
+    finally:
+        for kind, inst in (("ardupilot", first), ("ardupilot", second), ("px4", px4_a), ("px4", px4_b)):
+            autopilots._release(kind, inst)
+    assert autopilots.free_ardupilot_instance() == first  # released: handed out again
+    autopilots._release("ardupilot", first)
