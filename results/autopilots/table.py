@@ -21,8 +21,11 @@ def row(path: Path) -> str:
     lo, hi = wilson_interval(on_pad, n)
     est = [r["touchdown_distance_m"] for r in records if r["touchdown_distance_m"] is not None]
     true = [r["true_touchdown_distance_m"] for r in records if r.get("true_touchdown_distance_m") is not None]
+    if not true and all(r["success"] is not None for r in records) and "oursitl" in path.stem:
+        true = est  # our SITL's distances are its ground truth
     true_on = sum(1 for d in true if d <= 0.5)
-    policy, autopilot = path.stem.split("-", 1)
+    first, second = path.stem.split("-", 1)
+    policy, autopilot = (second, "our SITL (lockstep)") if first == "oursitl" else (first, second)
     return (f"| {policy} | {autopilot} | {n} | {touch} | {on_pad} ({100 * on_pad / n:.0f} %, {100 * lo:.0f}-{100 * hi:.0f} %) "
             f"| {statistics.median(est):.2f} | {true_on} of {len(true)} | {statistics.median(true):.2f} |" if est and true else
             f"| {policy} | {autopilot} | {n} | {touch} | {on_pad} | - | - | - |")
@@ -33,7 +36,9 @@ def main() -> None:
     print("| policy | autopilot | episodes | touchdowns | on the pad, reported (95 % CI) | median distance, reported (m) "
           "| within 0.5 m, true | median distance, true (m) |")
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
-    for path in sorted([*root.glob("*-px4.jsonl"), *root.glob("*-ardupilot.jsonl"), *root.glob("rerun/*-ardupilot.jsonl")]):
+    paths = [*root.glob("oursitl-*.jsonl"), *root.glob("*-px4.jsonl"), *root.glob("*-ardupilot.jsonl"),
+             *root.glob("rerun/*-ardupilot.jsonl")]
+    for path in sorted(paths, key=lambda p: (p.stem.split("-")[-1], p.stem)):
         if path.stat().st_size:
             print(row(path))
 
