@@ -4,17 +4,27 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup setup-browser test test-all demo bench lint clean image-check
+.PHONY: setup setup-browser test test-all demo bench lint clean image-check constraints
 
 setup: $(STAMP)
 
 # The CPU build of torch goes in first so that the project's torch range is already met
 # and pip never reaches for a multi-GB CUDA build.
-$(STAMP): pyproject.toml
+# TORCH_INDEX: where pip finds the CPU build (empty: the configured index, which here holds it;
+# on plain PyPI use TORCH_INDEX=https://download.pytorch.org/whl/cpu or pip takes a CUDA build).
+# constraints.txt pins every package to the version committed results were made with.
+TORCH_INDEX ?=
+EXTRAS := train,mavsdk,gamepad,console,onnx,test,cluster
+
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e '.[train,mavsdk,gamepad,console,onnx,test,cluster]'
+	$(PY) -m pip install --quiet torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX) --extra-index-url https://pypi.org/simple)
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[$(EXTRAS)]'
 	touch $(STAMP)
+
+# Rewrite constraints.txt from what the venv holds (after a deliberate upgrade).
+constraints: setup
+	{ sed -n '1,2p' constraints.txt; $(PY) -m pip freeze --exclude-editable | grep -v '^#' | sed 's/+cpu$$//'; } > constraints.tmp && mv constraints.tmp constraints.txt
 
 # Debian's chromium for the console's browser test (Playwright's own download is not needed)
 setup-browser:
