@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import socket
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Protocol
 
 from colcommon.heap import fix_mmap_threshold, release_free_heap
+from colcommon.numeric_env import append_record
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
@@ -346,6 +348,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     recorder = _recorder(opts, control)
     control = control or recorder
     first = opts.first_episode or next_episode(run_dir)
+    append_record(run_dir, command=sys.argv, first_episode=first)  # what its numbers were computed with
     if initial is None and opts.learn and first > 0:
         initial = _resume_policy(run_dir, first)
     with contextlib.ExitStack() as stack:

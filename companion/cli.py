@@ -351,13 +351,14 @@ def experiment(
     verify: Annotated[Path | None, typer.Option("--verify", help="instead: rerun --trials finished trials of this results folder, chosen at random, and compare their lines byte for byte")] = None,
     trials: Annotated[int, typer.Option("--trials", min=1, help="with --verify: how many trials to rerun")] = 2,
     seed: Annotated[int | None, typer.Option("--seed", help="with --verify: which trials are chosen (default: at random)")] = None,
+    trial: Annotated[list[str] | None, typer.Option("--trial", help="with --verify: rerun this trial (its key, e.g. P3-col-04-s3; repeat for more) instead of --trials at random")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's experiment with synthetic participants: every trial of the grid, then a
     report (Markdown table beside the paper's numbers, PNG plots) in the results folder."""
     _setup(verbose)
     if verify is not None:
-        _verify(verify, trials, seed)
+        _verify(verify, trials, seed, trial or [])
         return
     from companion.experiment.grid import load_experiment
     from companion.experiment.report import write_report
@@ -379,15 +380,16 @@ def experiment(
     typer.echo(json.dumps({"trials": len(results), "report": str(report), "results": str(out_dir / "results.jsonl")}))
 
 
-def _verify(results_dir: Path, trials: int, seed: int | None) -> None:
-    """``col experiment --verify``: exit 1 when a rerun trial writes another line."""
+def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str]) -> None:
+    """``col experiment --verify``: exit 1 when a rerun trial writes another line, saying what
+    in the numeric environment differs from the one the results were made in."""
     import tempfile
 
-    from companion.experiment.verify import verify
+    from companion.experiment.verify import environment_differences, verify
 
     try:
         with tempfile.TemporaryDirectory(prefix="col-verify-") as work:
-            checks = verify(results_dir, trials, Path(work), seed)
+            checks = verify(results_dir, trials, Path(work), seed, keys)
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:
@@ -395,7 +397,12 @@ def _verify(results_dir: Path, trials: int, seed: int | None) -> None:
     for check in checks:
         typer.echo(f"{check.key}: " + ("identical" if check.identical else f"DIFFERS {check.differences()}"))
     same = sum(c.identical for c in checks)
-    typer.echo(json.dumps({"verified": len(checks), "identical": same, "trials": [c.key for c in checks]}))
+    environment = environment_differences(results_dir)
+    if same != len(checks):
+        typer.echo("numeric environment: " + ("; ".join(environment) if environment else
+                   "the same as the results' (the difference is in the code or the data)"))
+    typer.echo(json.dumps({"verified": len(checks), "identical": same, "trials": [c.key for c in checks],
+                           "environment_differences": environment}))
     if same != len(checks):
         raise typer.Exit(1)
 

@@ -14,15 +14,18 @@ import json
 import logging
 import multiprocessing
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Generator, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 from tqdm import tqdm
 
+from colcommon.numeric_env import append_record
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.errors import ColError, ConfigError
@@ -219,5 +222,7 @@ def _write_setup(setup: ExperimentSetup, out_dir: Path, trials: int, done: int) 
               "experiment": setup.exp.model_dump(mode="json"),
               "companion": setup.companion.model_dump(mode="json")}
     (out_dir / "experiment.json").write_text(json.dumps(record, indent=1) + "\n")
+    append_record(out_dir, command=sys.argv, started_utc=datetime.now(UTC).isoformat(timespec="seconds"),
+                  already_done=done)
     if setup.config_path is not None:  # what `col experiment --verify` reruns trials with
         shutil.copyfile(setup.config_path, out_dir / CONFIG_COPY)

@@ -1,0 +1,91 @@
+"""The numeric environment: pinned whatever the shell asks for, recorded, and compared."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from colcommon import numeric_env as ne
+from companion.entry import PINNED_COMMANDS, command_of
+
+AVX2_CPU = {"sse4_2", "avx", "avx2", "fma"}
+
+
+def test_the_pin_overrides_whatever_kernel_the_shell_asked_for() -> None:
+    env = ne.pinned_environ({"OPENBLAS_CORETYPE": "SkylakeX", "HOME": "/h", "OMP_NUM_THREADS": "8"})
+    assert env["OPENBLAS_CORETYPE"] == "Haswell" and env["OMP_NUM_THREADS"] == "1" and env["HOME"] == "/h"
+    assert ne.is_pinned(env)
+    assert not ne.is_pinned({**env, "OPENBLAS_CORETYPE": "SkylakeX"})
+
+
+def test_the_pin_is_not_applied_where_it_cannot_run_or_is_declined() -> None:
+    assert ne.why_not_pinned({}, "x86_64", AVX2_CPU) is None
+    assert "lacks avx2 fma" in (ne.why_not_pinned({}, "x86_64", {"sse4_2", "avx"}) or "")
+    assert "aarch64" in (ne.why_not_pinned({}, "aarch64", set()) or "")
+    assert "native" in (ne.why_not_pinned({"COL_NUMERIC": "native"}, "x86_64", AVX2_CPU) or "")
+
+
+def test_cpu_flags_and_model_are_read_from_cpuinfo() -> None:
+    info = "processor\t: 0\nmodel name\t: Some CPU @ 2GHz\nflags\t\t: fpu sse4_2 avx2 fma avx512f\n"
+    assert ne.cpu_flags(info) == {"fpu", "sse4_2", "avx2", "fma", "avx512f"}
+    assert ne.cpu_model(info) == "Some CPU @ 2GHz"
+
+
+def test_differences_name_what_changed_and_nothing_else() -> None:
+    a = ne.record()
+    assert ne.differences(a, a) == []
+    b = json.loads(json.dumps(a))
+    b["blas"] = [{**lib, "architecture": "Prescott"} for lib in b["blas"]] or [{"architecture": "Prescott"}]
+    b["packages"]["numpy"] = "0.0.1"
+    lines = ne.differences(a, b)
+    assert any(line.startswith("packages.numpy: ") and line.endswith("-> 0.0.1") for line in lines)
+    assert any("architecture" in line and line.endswith("-> Prescott") for line in lines)
+    # the CPU itself matters only for a run without the pin
+    pinned = {**a, "profile": ne.PROFILE, "cpu_model": "A"}
+    assert ne.differences(pinned, {**pinned, "cpu_model": "B"}) == []
+    native = {**a, "profile": "native", "cpu_model": "A"}
+    assert ne.differences(native, {**native, "cpu_model": "B"}) == ["cpu_model: A -> B"]
+
+
+def test_records_append_and_a_torn_line_is_skipped(tmp_path: Path) -> None:
+    ne.append_record(tmp_path, command=["col", "experiment"])
+    with (tmp_path / ne.RECORDS_NAME).open("a") as f:
+        f.write('{"torn": ')
+    ne.append_record(tmp_path, command=["col", "experiment"], already_done=3)
+    records = ne.read_records(tmp_path)
+    assert [r.get("already_done") for r in records] == [None, 3]
+    assert records[0]["packages"]["numpy"] and records[0]["python"]
+    assert ne.read_records(tmp_path / "nowhere") == []
+
+
+def test_the_commands_that_make_results_are_the_pinned_ones() -> None:
+    assert command_of(["col", "-v", "experiment", "--config", "x"]) == "experiment"
+    assert command_of(["col"]) is None
+    assert {"experiment", "eval", "ppo", "finetune"} <= PINNED_COMMANDS
+    assert "fly" not in PINNED_COMMANDS and "console" not in PINNED_COMMANDS
+
+
+@pytest.mark.skipif(ne.why_not_pinned({}, os.uname().machine, ne.cpu_flags()) is not None,
+                    reason="this CPU cannot run the x86-64-v3 profile")
+@pytest.mark.parametrize("outside", ["SkylakeX", "Prescott", None])
+def test_a_pinned_process_loads_the_same_kernels_whatever_the_shell_set(tmp_path: Path, outside: str | None) -> None:
+    """The re-exec happens before numpy loads: OpenBLAS, numpy's dispatch and the thread
+    counts are the profile's in the process that computes."""
+    script = tmp_path / "probe.py"
+    script.write_text("import json, sys\nfrom colcommon.numeric_env import ensure_pinned, record\n"
+                      "ensure_pinned(sys.argv)\nprint(json.dumps(record()))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ne.PINNED}
+    if outside is not None:
+        env["OPENBLAS_CORETYPE"] = outside
+    out = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True,
+                         timeout=120, check=True, cwd=Path(__file__).resolve().parents[2])
+    rec = json.loads(out.stdout.strip().splitlines()[-1])
+    assert rec["profile"] == ne.PROFILE
+    openblas = [lib for lib in rec["blas"] if lib["internal_api"] == "openblas"]
+    assert openblas and all(lib["architecture"] == "Haswell" and lib["num_threads"] == 1 for lib in openblas)
+    assert "X86_V4" not in rec["numpy_dispatch"] and "AVX512_ICL" not in rec["numpy_dispatch"]
