@@ -17,7 +17,7 @@ import statistics
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -69,15 +69,28 @@ class ResultLike(Protocol):
     def human_samples(self) -> int: ...
 
 
-def finished(results: Iterable[ResultLike], condition: str, interactions: int) -> list[ResultLike]:
-    """The cell's results that count: status ``ok``, one per (participant, seed), the later
-    one winning (as in ``results.jsonl``), in (participant, seed) order."""
-    latest: dict[PairKey, ResultLike] = {}
+R = TypeVar("R", bound="ResultLike")
+
+
+def counted(results: Iterable[R]) -> list[R]:
+    """The one rule every reader of ``results.jsonl`` uses: a trial counts by its latest ``ok``
+    line; an ``error`` line (a retry that failed, a collision) never hides an ``ok`` one, and a
+    trial with no ``ok`` line does not count. In order of the trials' first appearance."""
+    latest: dict[tuple[str, str, int, int], R] = {}
+    order: dict[tuple[str, str, int, int], int] = {}
     for r in results:
         t = r.trial
-        if r.status == "ok" and t.condition == condition and t.interactions == interactions:
-            latest[(t.participant, t.seed)] = r
-    return [latest[k] for k in sorted(latest)]
+        key = (t.participant, t.condition, t.interactions, t.seed)
+        order.setdefault(key, len(order))
+        if r.status == "ok":
+            latest[key] = r
+    return [latest[k] for k in sorted(latest, key=order.__getitem__)]
+
+
+def finished(results: Iterable[R], condition: str, interactions: int) -> list[R]:
+    """The cell's results that count (:func:`counted`), in (participant, seed) order."""
+    cell = [r for r in counted(results) if r.trial.condition == condition and r.trial.interactions == interactions]
+    return sorted(cell, key=lambda r: (r.trial.participant, r.trial.seed))
 
 
 def paired_values(results: Sequence[ResultLike], a: str, b: str,

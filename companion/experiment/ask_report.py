@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from companion.experiment.results import TrialResult
-from companion.statistics import bootstrap_mean_ci
+from companion.statistics import bootstrap_mean_ci, counted
 
 PairKey = tuple[str, int]
 LABELS = {"col": "CoL", "ask": "Ask"}
@@ -26,8 +26,7 @@ REPORT_SEED = 0
 
 
 def _latest_ok(results: Sequence[TrialResult]) -> list[TrialResult]:
-    latest = {r.trial.key: r for r in results}
-    return [r for r in latest.values() if r.status == "ok"]
+    return counted(results)
 
 
 def _mean_se(values: Sequence[float]) -> tuple[float, float | None]:

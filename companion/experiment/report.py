@@ -29,6 +29,7 @@ from companion.statistics import (
     PairedComparison,
     compare_paired,
     completion_per_1000_samples,
+    counted,
     t_interval,
 )
 
@@ -76,9 +77,8 @@ class Cell:
 
 
 def latest_ok(results: Iterable[TrialResult]) -> list[TrialResult]:
-    """Finished trials, one per trial key (a later line wins, as in ``results.jsonl``)."""
-    latest = {r.trial.key: r for r in results}
-    return [r for r in latest.values() if r.status == "ok"]
+    """The trials that count, one per key: :func:`companion.statistics.counted`."""
+    return counted(results)
 
 
 def summarise(results: Iterable[TrialResult]) -> list[Cell]:
@@ -288,6 +288,81 @@ def participants_markdown(results: Sequence[TrialResult]) -> list[str]:
             "| --- | ---: | ---: |" + " ---: | ---: |" * len(conditions), *rows, ""]
 
 
+# --- numeric variants ---------------------------------------------------------------------
+
+VARIANTS_DIR = "variants"
+"""``<results>/variants/<name>/results.jsonl``: the same trials run again under another numeric
+environment (another BLAS kernel, say): each is one more draw of every trial."""
+PRIMARY_ENDPOINTS = (("col", "demo", 8), ("col", "demo", 20))
+ROBUSTNESS_ENDPOINTS = (*PRIMARY_ENDPOINTS, ("col", "int", 8), ("col", "int", 20))
+
+
+def read_variants(out_dir: Path) -> dict[str, list[TrialResult]]:
+    """The variants kept beside a results folder, by name (none: empty)."""
+    from companion.experiment.results import ResultsFile
+
+    root = out_dir / VARIANTS_DIR
+    if not root.is_dir():
+        return {}
+    return {d.name: ResultsFile(d / "results.jsonl").load()
+            for d in sorted(root.iterdir()) if (d / "results.jsonl").exists()}
+
+
+def _endpoint_cell(c: PairedComparison | None) -> str:
+    if c is None or c.mean is None:
+        return ""
+    ci = "" if c.ci is None else f" [{c.ci[0]:+.2f}, {c.ci[1]:+.2f}]"
+    return f"{c.mean:+.2f}{ci}"
+
+
+def _trial_agreement(a: Sequence[TrialResult], b: Sequence[TrialResult]) -> tuple[int, int, float, float]:
+    """(trials in both, identical lines, mean and largest |completion difference| in points)."""
+    mine = {r.trial.key: r for r in counted(a)}
+    theirs = {r.trial.key: r for r in counted(b)}
+    keys = sorted(mine.keys() & theirs.keys())
+    if not keys:
+        return 0, 0, math.nan, math.nan
+    same = sum(mine[k].to_json_line() == theirs[k].to_json_line() for k in keys)
+    moved = [abs(mine[k].completion_pct - theirs[k].completion_pct) for k in keys]
+    return len(keys), same, statistics.fmean(moved), max(moved)
+
+
+def variants_markdown(primary: Sequence[TrialResult], variants: dict[str, list[TrialResult]],
+                      primary_name: str = "primary") -> list[str]:
+    """The endpoints under each numeric variant and their spread, and how far single trials moved."""
+    if not variants:
+        return []
+    runs = {primary_name: list(primary), **variants}
+    names = list(runs)
+    rows = []
+    for a, b, n in ROBUSTNESS_ENDPOINTS:
+        found = {name: compare_paired(rs, a, b, n, CONFIDENCE, REPORT_SEED) for name, rs in runs.items()}
+        means = [c.mean for c in found.values() if c.n > 0 and c.mean is not None]
+        if not means:
+            continue
+        excl = [c.ci is not None and (c.ci[0] > 0 or c.ci[1] < 0) for c in found.values() if c.n > 0]
+        cells = " | ".join(_endpoint_cell(found[name] if found[name].n > 0 else None) for name in names)
+        primary_mark = " (primary)" if (a, b, n) in PRIMARY_ENDPOINTS else ""
+        rows.append(f"| {LABELS[a]} − {LABELS[b]} at {n}{primary_mark} | {cells} | {max(means) - min(means):.2f} | "
+                    f"{sum(excl)} of {len(excl)} |")
+    agreement = []
+    for name in variants:
+        both, same, mean_moved, most = _trial_agreement(primary, variants[name])
+        agreement.append(f"| {primary_name} vs {name} | {both} | {same} | {mean_moved:.2f} | {most:.2f} |")
+    header = " | ".join(names)
+    return ["## Numeric variants: the same trials under another numeric environment", "",
+            "Each variant ran every trial again with only the numeric environment changed "
+            "(its `environment.jsonl` says how). Mean paired difference in completion points "
+            "[95 % BCa interval], as in the paired table.", "",
+            f"| endpoint | {header} | spread of the means (points) | intervals excluding 0 |",
+            "| --- |" + " ---: |" * len(names) + " ---: | ---: |", *rows, "",
+            "| runs | trials in both | identical lines | mean completion change of a trial, absolute (points) | "
+            "largest (points) |", "| --- | ---: | ---: | ---: | ---: |", *agreement, "",
+            "A trial is closed-loop: a rounding difference grows into another flight, so each "
+            "trial is one draw of its cell and only the paired means over replicates carry the "
+            "conclusion (docs/experiment.md, \"Reproducible numbers\").", ""]
+
+
 # --- plots ----------------------------------------------------------------------------------
 
 def _pyplot() -> Any:
@@ -395,14 +470,15 @@ FIGURES = ("![learning curve](learning_curve.png)", "![task completion](completi
 
 def write_report(results: Sequence[TrialResult], out_dir: Path) -> Path:
     """``report.md``, ``completion.png``, ``samples.png``, ``learning_curve.png`` and
-    ``samples_curve.png`` in ``out_dir``; the report's path."""
+    ``samples_curve.png`` in ``out_dir``; the report's path. Variants kept under
+    ``out_dir/variants/`` get their section (:func:`variants_markdown`)."""
     cells = summarise(results)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "report.md"
     from companion.experiment.ask_report import ask_markdown
 
     sections = [*paired_markdown(results), *ask_markdown(results), *efficiency_markdown(results),
-                *participants_markdown(results)]
+                *participants_markdown(results), *variants_markdown(results, read_variants(out_dir))]
     body = markdown(cells) + "\n" + "\n".join(sections)
     path.write_text("# Experiment: synthetic participants\n\n" + body + "\n" + "\n\n".join(FIGURES) + "\n")
     if cells:

@@ -2,8 +2,9 @@
 
 The grid's parent process is the file's only writer: one line per finished trial, flushed
 and synced, so a crash loses at most the trials that were running. A torn last line (a crash
-while writing) is ignored on reading and cut before the next append; later lines for the
-same trial win.
+while writing) is ignored on reading and cut before the next append. A trial counts by its
+latest ``ok`` line; an ``error`` line never hides one (:func:`companion.statistics.counted`, the
+rule the runner, the report, the statistics and ``--verify`` share).
 """
 
 from __future__ import annotations

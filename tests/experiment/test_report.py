@@ -112,3 +112,50 @@ def test_a_report_of_nothing_finished_has_no_tables_or_plots(tmp_path: Path) -> 
     text = write_report([result("P1", "col", 4, 0, 0, 0, status="error")], tmp_path).read_text()
     assert "## Paired comparisons" not in text and "## Per participant" not in text
     assert not (tmp_path / "learning_curve.png").exists()
+
+
+def test_one_rule_for_every_reader_an_error_line_never_hides_an_ok_one(tmp_path: Path) -> None:
+    """ok then error (a retry that failed), error then ok, two oks: the report, the statistics
+    and the results file agree on which line counts."""
+    from companion.experiment.report import latest_ok, summarise
+    from companion.experiment.results import ResultsFile
+    from companion.statistics import counted, finished
+
+    lines = [result("P1", "col", 20, 0, 70, 1000), result("P1", "col", 20, 0, 0, 0, status="error"),
+             result("P2", "col", 20, 0, 0, 0, status="error"), result("P2", "col", 20, 0, 90, 1100),
+             result("P3", "col", 20, 0, 10, 900), result("P3", "col", 20, 0, 30, 900),
+             result("P4", "col", 20, 0, 0, 0, status="error")]
+    path = tmp_path / "results.jsonl"
+    for r in lines:
+        ResultsFile(path).append(r)
+    loaded = ResultsFile(path).load()
+    want = {"P1": 70.0, "P2": 90.0, "P3": 30.0}
+    for rows in (counted(loaded), latest_ok(loaded), finished(loaded, "col", 20)):
+        assert {r.trial.participant: r.completion_pct for r in rows} == want
+    (cell,) = summarise(loaded)
+    assert cell.n == 3 and cell.completion_pct[0] == pytest.approx(190 / 3)
+    assert set(ResultsFile(path).finished("x")) == {"P1-col-20-s0", "P2-col-20-s0", "P3-col-20-s0"}
+
+
+def test_variants_show_each_runs_endpoints_their_spread_and_how_far_trials_moved(tmp_path: Path) -> None:
+    from companion.experiment.report import read_variants, variants_markdown
+    from companion.experiment.results import ResultsFile
+
+    primary = grid()
+    # the variant: P1's CoL@20 moved from 70 to 90 (CoL - Demo at 20: 30, 20, 30, 40 -> mean 30)
+    variant = [result("P1", "col", 20, 0, 90, 1200) if (r.trial.participant, r.trial.condition,
+               r.trial.interactions) == ("P1", "col", 20) else r for r in primary]
+    folder = tmp_path / "variants" / "other-kernel"
+    for r in variant:
+        ResultsFile(folder / "results.jsonl").append(r)
+    variants = read_variants(tmp_path)
+    assert list(variants) == ["other-kernel"]
+    text = "\n".join(variants_markdown(primary, variants, "pinned"))
+    row = next(line for line in text.splitlines() if line.startswith("| CoL − Demo at 20 (primary)"))
+    assert "| +25.00 [" in row and "| +30.00 [" in row and "| 5.00 |" in row
+    agreement = next(line for line in text.splitlines() if line.startswith("| pinned vs other-kernel"))
+    # 18 trials counted in both (P4's Demo@8 is an error line), 17 identical, one moved 20 points
+    assert agreement == "| pinned vs other-kernel | 18 | 17 | 1.11 | 20.00 |"
+    assert variants_markdown(primary, {}) == []
+    report = write_report(primary, tmp_path).read_text()
+    assert "## Numeric variants" in report and "other-kernel" in report
