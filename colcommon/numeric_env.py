@@ -135,6 +135,47 @@ def ensure_pinned(argv: list[str], environ: MutableMapping[str, str] | None = No
     return None  # pragma: no cover - execve does not return
 
 
+AVX512_CORE_TYPES = frozenset({"SkylakeX", "Cooperlake", "SapphireRapids"})
+"""OpenBLAS core types whose kernels execute AVX-512."""
+
+
+def environ_of_record(rec: Mapping[str, Any]) -> dict[str, str] | None:
+    """The variables that reproduce a recorded environment: the profile's, or for a run made
+    with the CPU's own kernels the OpenBLAS core type it loaded (and the variables it had set).
+    None for a record that names neither."""
+    if rec.get("profile") == PROFILE:
+        return dict(PINNED)
+    if rec.get("profile") != "native":
+        return None
+    env = {k: str(v) for k, v in (rec.get("variables") or {}).items()
+           if v is not None and k not in ("COL_NUMERIC_PROFILE", OPT_OUT)}
+    arch = next((lib.get("architecture") for lib in rec.get("blas") or [] if lib.get("internal_api") == "openblas"), None)
+    if arch:
+        env["OPENBLAS_CORETYPE"] = str(arch)
+    env[OPT_OUT] = "native"
+    return env
+
+
+def can_run_environ(wanted: Mapping[str, str], machine: str, flags: set[str]) -> bool:
+    """Whether this CPU executes the kernels ``wanted`` asks for."""
+    if wanted.get(OPT_OUT) != "native":
+        return can_run_profile(machine, flags)
+    core = wanted.get("OPENBLAS_CORETYPE")
+    if core in AVX512_CORE_TYPES:
+        return "avx512f" in flags and "avx512vl" in flags
+    return True
+
+
+def ensure_environ(argv: list[str], wanted: Mapping[str, str], environ: MutableMapping[str, str] | None = None) -> None:
+    """Re-execute with exactly ``wanted`` of the numeric variables (the others of
+    :data:`PINNED` removed) unless this process already has it."""
+    env = os.environ if environ is None else environ
+    if all(env.get(k) == v for k, v in wanted.items()) and all(k in wanted or k not in env for k in PINNED):
+        return
+    new = {k: v for k, v in env.items() if k not in PINNED or k in wanted}
+    os.execve(sys.executable, [sys.executable, *argv], {**new, **wanted})
+
+
 def _blas() -> list[dict[str, object]]:
     """The BLAS/OpenMP libraries loaded now, as threadpoolctl reads them (core type included)."""
     try:

@@ -89,3 +89,24 @@ def test_a_pinned_process_loads_the_same_kernels_whatever_the_shell_set(tmp_path
     openblas = [lib for lib in rec["blas"] if lib["internal_api"] == "openblas"]
     assert openblas and all(lib["architecture"] == "Haswell" and lib["num_threads"] == 1 for lib in openblas)
     assert "X86_V4" not in rec["numpy_dispatch"] and "AVX512_ICL" not in rec["numpy_dispatch"]
+
+
+def test_a_record_says_how_to_run_again_as_it_ran() -> None:
+    pinned = {"profile": ne.PROFILE, "blas": [{"internal_api": "openblas", "architecture": "Haswell"}]}
+    assert ne.environ_of_record(pinned) == ne.PINNED
+    native = {"profile": "native", "variables": {"OMP_NUM_THREADS": None, "OPENBLAS_CORETYPE": None},
+              "blas": [{"internal_api": "openblas", "architecture": "SkylakeX"}]}
+    wanted = ne.environ_of_record(native)
+    assert wanted == {"OPENBLAS_CORETYPE": "SkylakeX", "COL_NUMERIC": "native"}
+    assert ne.can_run_environ(wanted, "x86_64", AVX2_CPU | {"avx512f", "avx512vl"})
+    assert not ne.can_run_environ(wanted, "x86_64", AVX2_CPU)  # SkylakeX kernels need AVX-512
+    assert not ne.can_run_environ(ne.PINNED, "aarch64", set())
+    assert ne.environ_of_record({"profile": "something else"}) is None
+
+
+def test_verify_names_its_folder_either_way() -> None:
+    from companion.entry import verified_folder
+
+    assert verified_folder(["col", "experiment", "--verify", "results/x", "--trials", "1"]) == Path("results/x")
+    assert verified_folder(["col", "experiment", "--verify=results/y"]) == Path("results/y")
+    assert verified_folder(["col", "experiment", "--config", "c.toml"]) is None
