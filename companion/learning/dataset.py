@@ -9,6 +9,11 @@ lines on an ``O_APPEND`` descriptor, so a crash of the process loses at most the
 call in flight (``sync()`` also survives power loss). Loading tolerates a torn last line and
 reports what it skipped; opening an existing file resumes it.
 
+Discarding an episode (a demonstration nobody flew, say) deletes nothing: its rows stay in the
+CSV and a line saying which episode, how many rows, when and why is appended to
+``<name>.discarded.jsonl`` beside it; the in-memory set drops them, and so does every later
+opening of the file (:func:`discarded_episodes`).
+
 Training never reads the file: rows also go to in-memory arrays that grow in chunks. Rows are
 written once and never moved or changed afterwards; ``view()`` hands out read-only slices up to
 the length published at that moment, so the learner reads without locks while appends go on.
@@ -16,9 +21,11 @@ the length published at that moment, so the learner reads without locks while ap
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import threading
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
@@ -33,6 +40,23 @@ from companion.vision.observation import OBS_NAMES
 log = logging.getLogger(__name__)
 
 META_COLUMNS: tuple[str, ...] = ("episode", "step", "time_s", "source")
+DISCARDS_SUFFIX = ".discarded.jsonl"
+
+
+def discarded_episodes(csv_path: str | Path) -> set[int]:
+    """Episodes of a dataset file taken out of training (its audit file; unreadable lines are
+    reported and skipped, so a torn last line after a crash costs nothing)."""
+    p = Path(csv_path)
+    audit = p.with_name(p.stem + DISCARDS_SUFFIX)
+    if not audit.exists():
+        return set()
+    out: set[int] = set()
+    for i, line in enumerate(audit.read_text().splitlines(), start=1):
+        try:
+            out.add(int(json.loads(line)["episode"]))
+        except (ValueError, KeyError, TypeError):
+            log.warning("%s: line %d unreadable, skipped", audit, i)
+    return out
 
 
 class Source(str, Enum):
@@ -244,6 +268,8 @@ class HumanDataset:
         self.counts = {s: 0 for s in Source}
         self.last_episode = -1
         self.load_report = LoadReport(0)
+        self.discarded: set[int] = set()
+        self._episodes: list[int] = []  # each in-memory row's episode (to discard the last one)
         self._fd = -1 if self.path is None else self._open_file(self.path)
 
     # -- file ---------------------------------------------------------------------------
@@ -264,14 +290,19 @@ class HumanDataset:
         return fd
 
     def _take(self, loaded: LoadedRows) -> None:
-        n = loaded.obs.shape[0]
+        self.last_episode = int(loaded.episode.max()) if loaded.episode.size else -1
+        assert self.path is not None
+        self.discarded = discarded_episodes(self.path)
+        keep = ~np.isin(loaded.episode, sorted(self.discarded))
+        n = int(keep.sum())
         self._rows.ensure(n)
-        self._rows.obs[:n] = loaded.obs
-        self._rows.actions[:n] = loaded.actions
-        self._rows.intervention[:n] = [s is Source.INTERVENTION for s in loaded.source]
-        for s in loaded.source:
+        self._rows.obs[:n] = loaded.obs[keep]
+        self._rows.actions[:n] = loaded.actions[keep]
+        sources = [s for s, k in zip(loaded.source, keep, strict=True) if k]
+        self._rows.intervention[:n] = [s is Source.INTERVENTION for s in sources]
+        for s in sources:
             self.counts[s] += 1
-        self.last_episode = int(loaded.episode.max()) if n else -1
+        self._episodes = loaded.episode[keep].tolist()
         self._publish(n)
 
     def sync(self) -> None:
@@ -317,9 +348,53 @@ class HumanDataset:
                 self._rows.intervention[i] = s.source is Source.INTERVENTION
                 self.counts[s.source] += 1
                 self.last_episode = max(self.last_episode, s.episode)
+                self._episodes.append(s.episode)
             self._publish(n + len(batch))
             self._cond.notify_all()
             return n + len(batch)
+
+    def discard_episode(self, episode: int, reason: str) -> int:
+        """Take ``episode``'s rows out of training, with an audit line; returns how many.
+
+        Only the newest episode in memory can go (its rows are the last ones): ValueError for
+        any other, or for one already discarded. Views taken before keep their rows."""
+        with self._cond:
+            n = len(self._published)
+            first = n
+            while first > 0 and self._episodes[first - 1] == episode:
+                first -= 1
+            if episode in self.discarded:
+                raise ValueError(f"episode {episode} was discarded already")
+            if first == n and episode <= self.last_episode:
+                raise ValueError(f"episode {episode} is not the dataset's last episode ({self.last_episode}); "
+                                 "only the last one can be discarded")
+            if self.path is not None:
+                line = {"episode": episode, "rows": n - first, "reason": reason,
+                        "time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+                with self.discards_path(self.path).open("a") as f:
+                    f.write(json.dumps(line) + "\n")
+                    f.flush()
+                    os.fsync(f.fileno())
+            self._keep_first(first)
+            self.discarded.add(episode)
+            log.warning("discarded episode %d (%d samples) from training: %s", episode, n - first, reason)
+            return n - first
+
+    def _keep_first(self, n: int) -> None:
+        """Publish rows ``[0, n)`` in new arrays: rows past ``n`` in old views are never rewritten."""
+        old = self._rows
+        fresh = _Rows(old.obs.shape[1], old.chunk_rows)
+        fresh.ensure(n)
+        fresh.obs[:n], fresh.actions[:n], fresh.intervention[:n] = old.obs[:n], old.actions[:n], old.intervention[:n]
+        for i in range(n, len(self._published)):
+            self.counts[Source.INTERVENTION if old.intervention[i] else Source.DEMONSTRATION] -= 1
+        self._rows = fresh
+        del self._episodes[n:]
+        self._publish(n)
+
+    @staticmethod
+    def discards_path(path: Path) -> Path:
+        return path.with_name(path.stem + DISCARDS_SUFFIX)
 
     def _publish(self, n: int) -> None:
         obs, actions, intervention = self._rows.obs[:n], self._rows.actions[:n], self._rows.intervention[:n]

@@ -163,8 +163,12 @@ class Learner:
     # -- the paper's loop ---------------------------------------------------------------
     @property
     def has_work(self) -> bool:
-        """New samples exist, or the current round has neither converged nor hit the cap."""
-        if len(self.dataset) > self._round_size:
+        """New samples exist (or some were discarded), or the current round has neither
+        converged nor hit the cap; never on an empty dataset."""
+        n = len(self.dataset)
+        if n == 0:
+            return False
+        if n != self._round_size:
             return True
         return self._round_size > 0 and not self._converged and not self._capped
 
@@ -179,7 +183,7 @@ class Learner:
 
     def _restart_round_if_new_samples(self) -> None:
         n = len(self.dataset)
-        if n > self._round_size:
+        if n != self._round_size and n > 0:  # fewer: an episode was discarded, the round starts over
             self._round_size, self._round_updates, self._converged = n, 0, False
 
     def train_until_converged(self, budget: int | None = None, *,
