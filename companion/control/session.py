@@ -74,6 +74,8 @@ class StepView:
     policy_version: int | None
     human_override: bool
     human_hold: bool
+    frame_number: int | None = None
+    """The camera frame the observation's pad was detected in (None: none)."""
 
 
 class EpisodeControl(Protocol):
@@ -651,7 +653,7 @@ class EpisodeRunner:
                                          decision.command.to_array()))
         if self.p.control is not None:
             self.p.control.on_step(StepView(episode, step, phase, obs, decision, sp, version,
-                                            human.override_held, human.hold))
+                                            human.override_held, human.hold, self.p.observer.last_frame_number))
         return None, version
 
     def _supervised_steps(self, phase: Phase, steps: int) -> int:

@@ -42,6 +42,9 @@ class Observer:
         """Per observation: the vehicle's time of the telemetry minus the frame's stamp (the
         telemetry time it was rendered from, or its capture time): how old the picture is."""
         self._last_frame_ms: int | None = None
+        self.last_frame_number: int | None = None
+        """The number of the frame the latest observation's pad came from (None: no frame),
+        so a viewer can draw the detection on that very frame."""
 
     def _warn(self, message: str) -> None:
         now = time.monotonic()
@@ -64,6 +67,7 @@ class Observer:
             return None
         self.image_size_px = (frame.image.shape[1], frame.image.shape[0])
         self._last_frame_ms = frame.time_boot_ms
+        self.last_frame_number = frame.frame_number
         try:
             return self.detector.detect(frame.image)
         except ValueError as exc:  # a corrupt image: judged not visible
@@ -90,7 +94,7 @@ class Observer:
         """The observation for ``snapshot``; ValueError if its telemetry is not finite.
         ``position_ned_m``: the position relative to home (default: the snapshot's, as sent)."""
         stamp = snapshot.frame_time_boot_ms if lockstep else None
-        self._last_frame_ms = None
+        self._last_frame_ms = self.last_frame_number = None
         pad = self.detect(stamp)
         if self._last_frame_ms is not None and getattr(self.camera, "vehicle_time_stamps", False):
             self.frame_ages_ms.append(int(snapshot.time_boot_ms) - self._last_frame_ms)
