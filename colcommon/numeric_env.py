@@ -228,20 +228,42 @@ def record(environ: Mapping[str, str] | None = None) -> dict[str, object]:
     }
 
 
-COMPARED = ("profile", "python", "packages", "blas", "numpy_dispatch", "torch_cpu_capability", "machine",
-            "variables")
-"""What must match for a rerun to match (the CPU model and flags may differ under the pin)."""
+COMPARED = ("profile", "python", "packages", "numpy_dispatch", "torch_cpu_capability", "machine")
+"""What must match for a rerun to match, beside the BLAS kernels and the variables (the CPU
+model and flags may differ under the pin)."""
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+"""Not compared: the processes that compute (the grid's workers) set one thread themselves."""
 
 
-def differences(recorded: Mapping[str, object], current: Mapping[str, object]) -> list[str]:
+def blas_kernels(rec: Mapping[str, Any]) -> dict[str, str | None]:
+    """``{"openblas 0.3.31": "SkylakeX", ...}``: each BLAS library's kernel, in any order."""
+    return {f"{lib.get('internal_api')} {lib.get('version')}": lib.get("architecture")
+            for lib in rec.get("blas") or [] if lib.get("user_api") == "blas"}
+
+
+def effective_variables(rec: Mapping[str, Any]) -> dict[str, Any]:
+    """The record's numeric variables, ``OPENBLAS_CORETYPE`` as the kernel numpy's OpenBLAS
+    loaded when none was set (auto-chosen SkylakeX and asked-for SkylakeX are the same)."""
+    variables = {k: v for k, v in (rec.get("variables") or {}).items() if k not in THREAD_VARIABLES}
+    if variables.get("OPENBLAS_CORETYPE") is None:
+        loaded = [v for k, v in blas_kernels(rec).items() if k.startswith("openblas")]
+        variables["OPENBLAS_CORETYPE"] = loaded[0] if loaded else None
+    return variables
+
+
+def differences(recorded: Mapping[str, Any], current: Mapping[str, Any]) -> list[str]:
     """Human-readable lines, one per difference that can change numbers, e.g.
-    ``blas[0].architecture: SkylakeX -> Haswell``; empty when they agree."""
+    ``blas.openblas 0.3.31: SkylakeX -> Haswell``; empty when they agree."""
     lines: list[str] = []
     for key in COMPARED:
         a, b = recorded.get(key), current.get(key)
         if key == "torch_cpu_capability" and (a is None or b is None):
             continue  # not known where torch had not been loaded when the record was made
         _diff(key, a, b, lines)
+    kernels_a, kernels_b = blas_kernels(recorded), blas_kernels(current)
+    for lib in sorted(kernels_a.keys() & kernels_b.keys()):  # a library loaded by one process only computes nothing the other did
+        _diff(f"blas.{lib}", kernels_a[lib], kernels_b[lib], lines)
+    _diff("variables", effective_variables(recorded), effective_variables(current), lines)
     if recorded.get("profile") == "native" or current.get("profile") == "native":
         for key in ("cpu_model", "cpu_flags"):  # only unpinned runs depend on the CPU itself
             _diff(key, recorded.get(key), current.get(key), lines)

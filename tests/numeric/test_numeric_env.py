@@ -44,7 +44,7 @@ def test_differences_name_what_changed_and_nothing_else() -> None:
     b["packages"]["numpy"] = "0.0.1"
     lines = ne.differences(a, b)
     assert any(line.startswith("packages.numpy: ") and line.endswith("-> 0.0.1") for line in lines)
-    assert any("architecture" in line and line.endswith("-> Prescott") for line in lines)
+    assert any(line.startswith("blas.openblas ") and line.endswith("-> Prescott") for line in lines)
     # the CPU itself matters only for a run without the pin
     pinned = {**a, "profile": ne.PROFILE, "cpu_model": "A"}
     assert ne.differences(pinned, {**pinned, "cpu_model": "B"}) == []
@@ -110,3 +110,17 @@ def test_verify_names_its_folder_either_way() -> None:
     assert verified_folder(["col", "experiment", "--verify", "results/x", "--trials", "1"]) == Path("results/x")
     assert verified_folder(["col", "experiment", "--verify=results/y"]) == Path("results/y")
     assert verified_folder(["col", "experiment", "--config", "c.toml"]) is None
+
+
+def test_the_same_kernels_in_another_order_or_asked_for_explicitly_are_no_difference() -> None:
+    lib = {"user_api": "blas", "internal_api": "openblas", "version": "0.3.31", "num_threads": 2}
+    omp = {"user_api": "openmp", "internal_api": "openmp", "version": None, "num_threads": 2}
+    auto = {"profile": "native", "blas": [{**lib, "architecture": "SkylakeX"}, omp],
+            "variables": {"OPENBLAS_CORETYPE": None, "OMP_NUM_THREADS": None}}
+    asked = {"profile": "native", "blas": [{**omp, "num_threads": 1}, {**lib, "architecture": "SkylakeX", "num_threads": 1},
+                                           {**lib, "version": "0.3.15", "architecture": "SkylakeX"}],
+             "variables": {"OPENBLAS_CORETYPE": "SkylakeX", "OMP_NUM_THREADS": "1"}}
+    assert ne.differences(auto, asked) == []
+    other = {**asked, "blas": [{**lib, "architecture": "Haswell"}], "variables": {"OPENBLAS_CORETYPE": "Haswell"}}
+    assert ne.differences(auto, other) == ["blas.openblas 0.3.31: SkylakeX -> Haswell",
+                                           "variables.OPENBLAS_CORETYPE: SkylakeX -> Haswell"]
