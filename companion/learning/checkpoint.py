@@ -8,7 +8,8 @@ and version, observation and action names, hidden sizes, activations, the learne
 snapshot version, dataset size, episode, condition, creation time and free-form ``extra``.
 
 Writing goes to a temporary file in the same directory, is fsync'ed, then ``os.replace``'d
-over the target: a reader sees the old file or the new one, never half of one.
+over the target: a reader sees the old file or the new one, never half of one. The file's
+mode is 0666 less the umask, as for any file the process writes (0644 under the usual 022).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
+import secrets
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -86,7 +87,7 @@ def save_checkpoint(
     arrays["metadata"] = np.frombuffer(json.dumps(meta, indent=1).encode(), dtype=np.uint8)
     buf = io.BytesIO()
     np.savez(buf, allow_pickle=False, **cast(dict[str, Any], arrays))
-    return _write_atomically(Path(path), buf.getvalue())
+    return write_atomically(Path(path), buf.getvalue())
 
 
 def _metadata(snap: PolicySnapshot, config: LearnerConfig, dataset_size: int, episode: int,
@@ -116,9 +117,15 @@ def _metadata(snap: PolicySnapshot, config: LearnerConfig, dataset_size: int, ep
     return meta
 
 
-def _write_atomically(path: Path, data: bytes) -> Path:
+def write_atomically(path: Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` so that a reader sees the old file or the new one, never half.
+
+    The file gets the permissions of any file the process creates (0666 less the umask), not
+    the 0600 of :func:`tempfile.mkstemp`: a checkpoint is handed to other users, for example
+    mounted read-only into a container that runs as another uid.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = _create_temporary(path)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -126,7 +133,7 @@ def _write_atomically(path: Path, data: bytes) -> Path:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
     dir_fd = os.open(path.parent, os.O_RDONLY)
     try:
@@ -134,6 +141,18 @@ def _write_atomically(path: Path, data: bytes) -> Path:
     finally:
         os.close(dir_fd)
     return path
+
+
+def _create_temporary(path: Path) -> tuple[int, Path]:
+    """A new, exclusively created file beside ``path``, mode 0666 filtered by the umask (the
+    kernel applies it; reading the umask with ``os.umask`` would race other threads)."""
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name beside {path}")
 
 
 def load_checkpoint(path: str | Path, *, obs_dim: int | None = OBS_DIM,

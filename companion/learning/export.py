@@ -24,7 +24,12 @@ import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
-from companion.learning.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
+from companion.learning.checkpoint import (
+    CheckpointMeta,
+    load_checkpoint,
+    save_checkpoint,
+    write_atomically,
+)
 from companion.learning.snapshot import ACTION_NAMES, PolicySnapshot
 
 if TYPE_CHECKING:
@@ -119,6 +124,4 @@ def export_checkpoint(checkpoint: Path, fmt: str, out: Path | None = None,
                                condition=meta.condition, obs_names=meta.obs_names,
                                extra={**meta.extra, "exported_from": checkpoint.name})
     model = onnx_model(snapshot, check_opset(opset), _metadata(meta))
-    target.parent.mkdir(parents=True, exist_ok=True)
-    _onnx().save(model, str(target))
-    return target
+    return write_atomically(target, model.SerializeToString())

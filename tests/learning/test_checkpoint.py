@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import stat
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -141,3 +145,24 @@ def test_file_is_a_plain_zip_without_pickles(tmp_path: Path, rng) -> None:
     with zipfile.ZipFile(path) as zf:
         assert zf.testzip() is None
         assert "metadata.npy" in zf.namelist()
+
+
+@contextmanager
+def umask(mask: int) -> Iterator[None]:
+    """The process umask set to ``mask`` for the block (tests run single-threaded here)."""
+    old = os.umask(mask)
+    try:
+        yield
+    finally:
+        os.umask(old)
+
+
+@pytest.mark.parametrize(("mask", "mode"), [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_the_file_mode_follows_the_umask(tmp_path: Path, rng, mask: int, mode: int) -> None:
+    """Not mkstemp's 0600: a checkpoint mounted read-only into a container of another uid must
+    be readable there, and a user who wants it private says so with the umask."""
+    with umask(mask):
+        path = _save(tmp_path / "shared.npz", _snapshot(rng))
+        _save(path, _snapshot(rng))  # an overwrite gets the same mode
+    assert stat.S_IMODE(path.stat().st_mode) == mode
+    assert [p.name for p in tmp_path.iterdir()] == ["shared.npz"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from companion.errors import ConfigError
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
 from companion.learning.export import DEFAULT_OPSET, export_checkpoint
 from companion.learning.policy import Normalisation, PolicyNet
+from tests.learning.test_checkpoint import umask
 
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
@@ -106,3 +108,14 @@ def test_cli_export_prints_what_it_wrote_and_fails_clearly(checkpoint: tuple[Pat
     missing = runner.invoke(app, ["export", str(tmp_path / "nope.npz")])
     assert missing.exit_code == 2 and "does not exist" in missing.output
     assert inspect.signature(export_cmd).parameters["opset"].default == DEFAULT_OPSET
+
+
+@pytest.mark.parametrize("fmt", ["onnx", "npz"])
+def test_exports_are_readable_by_others_under_the_usual_umask(checkpoint: tuple[Path, PolicyNet],
+                                                              tmp_path: Path, fmt: str) -> None:
+    """The Dockerfile's example mounts the exported policy read-only for uid 10001."""
+    path, _ = checkpoint
+    with umask(0o022):
+        written = export_checkpoint(path, fmt, tmp_path / "out" / f"policy.{fmt}")
+    assert stat.S_IMODE(written.stat().st_mode) == 0o644
+    assert sorted(p.name for p in written.parent.iterdir()) == [written.name]  # no temporary left
