@@ -25,11 +25,15 @@ RUN if ! command -v python3 >/dev/null; then \
 # -- build: the lean install into a venv that the runtime stage copies whole ------------------
 FROM base AS build
 # jsbsim publishes no Linux wheel for arm64: there pip builds it from source (CMake comes from
-# PyPI, the C++ compiler from here). Only this stage has a compiler; the runtime copies no tool.
+# PyPI, the C++ compiler and, where the Python is Debian's, its headers `python3-dev` from here;
+# the python:* images ship their headers). Only this stage has them; the runtime copies no tool.
 ARG TARGETARCH
 RUN packages=""; \
     python3 -c "import ensurepip" 2>/dev/null || packages="python3-venv"; \
     [ "${TARGETARCH:-amd64}" = amd64 ] || packages="$packages g++"; \
+    [ "${TARGETARCH:-amd64}" = amd64 ] \
+        || python3 -c "import os, sysconfig; raise SystemExit(not os.path.exists(os.path.join(sysconfig.get_path('include'), 'Python.h')))" \
+        || packages="$packages python3-dev"; \
     if [ -n "$packages" ]; then \
         apt-get update \
         && apt-get install -y --no-install-recommends $packages \

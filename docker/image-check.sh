@@ -73,7 +73,8 @@ podman system service --time=0 "unix://$socket" >"$WORK/service.log" 2>&1 &
 service_pid=$!
 health_pid=""
 cleanup() {
-    DOCKER_HOST="unix://$socket" COL_IMAGE="$IMAGE" docker-compose -p colcheck down >/dev/null 2>&1 || true
+    # -v: the check's own run volume (colcheck_runs) goes too, so the next check starts afresh
+    DOCKER_HOST="unix://$socket" COL_IMAGE="$IMAGE" docker-compose -p colcheck down -v >/dev/null 2>&1 || true
     [ -z "$health_pid" ] || kill "$health_pid" 2>/dev/null || true
     kill "$service_pid" 2>/dev/null || true
 }
@@ -89,6 +90,7 @@ for _ in $(seq 50); do [ -S "$socket" ] && break; sleep 0.2; done
 done) &
 health_pid=$!
 export DOCKER_HOST="unix://$socket" COL_IMAGE="$IMAGE" COL_EPISODES="$EPISODES"
+docker-compose -p colcheck down -v >/dev/null 2>&1 || true  # a run volume an aborted check left
 docker-compose -p colcheck up --no-build --abort-on-container-exit --exit-code-from companion \
     >"$WORK/compose.log" 2>&1 || { tail -n 40 "$WORK/compose.log" >&2; fail "compose session failed; see $WORK/compose.log"; }
 summary=$(grep -o '{"episodes".*}' "$WORK/compose.log" | tail -n1 || true)

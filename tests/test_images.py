@@ -55,6 +55,31 @@ def test_the_runtime_stage_is_lean_and_runs_as_a_user() -> None:
     assert re.search(r'\[ "\$\{TARGETARCH:-amd64\}" = amd64 \] \|\| packages="\$packages g\+\+"', build)
 
 
+def build_packages(tmp_path: Path, arch: str, *, venv: bool, headers: bool) -> list[str]:
+    """What the build stage's first RUN would apt-get install, run in sh against a stand-in
+    ``python3`` that has (or lacks) ensurepip and the C headers."""
+    run = next(line for line in stages()["build"] if line.startswith("RUN packages="))
+    script = run[len("RUN "):run.index("if [ -n")] + 'echo "$packages"'
+    fake = tmp_path / "bin" / "python3"
+    fake.parent.mkdir(parents=True)
+    venv_rc, headers_rc = int(not venv), int(not headers)
+    fake.write_text(f'#!/bin/sh\ncase "$*" in *ensurepip*) exit {venv_rc};; *Python.h*) exit {headers_rc};; esac\nexit 3\n')
+    fake.chmod(0o755)
+    env = {"PATH": f"{fake.parent}:/usr/bin:/bin", "TARGETARCH": arch}
+    done = subprocess.run(["sh", "-c", script], env=env, capture_output=True, text=True, check=True)
+    return done.stdout.split()
+
+
+def test_arm64_builds_get_a_compiler_and_the_python_headers_jsbsim_needs(tmp_path: Path) -> None:
+    """jsbsim is a source build on arm64: g++, and python3-dev where the Python (Debian's, as on
+    `make image-check`'s base) lacks Python.h; amd64 installs nothing, python:* images no headers."""
+    assert build_packages(tmp_path / "a", "amd64", venv=True, headers=False) == []
+    assert build_packages(tmp_path / "b", "arm64", venv=False, headers=False) == ["python3-venv", "g++", "python3-dev"]
+    assert build_packages(tmp_path / "c", "arm64", venv=True, headers=True) == ["g++"]
+    runtime = "\n".join(stages()["runtime"] + stages()["base"])
+    assert "python3-dev" not in runtime
+
+
 def test_the_dev_stage_installs_with_make_setup() -> None:
     dev = "\n".join(stages()["dev"])
     assert "make setup" in dev and "COPY tests ./tests" in dev
@@ -78,6 +103,18 @@ def test_compose_runs_sitl_and_companion_with_health_checks() -> None:
     assert services["companion"]["depends_on"]["sitl"]["condition"] == "service_healthy"
     assert "col-sitl" in services["sitl"]["command"]
     assert "--condition col" in services["companion"]["command"]
+
+
+def test_compose_keeps_the_run_folder_in_a_volume() -> None:
+    """`docker compose down` removes containers, not named volumes: the dataset and the
+    checkpoints the companion writes to runs/compose outlive the session."""
+    yaml = pytest.importorskip("yaml")
+    compose = yaml.safe_load((REPO / "compose.yaml").read_text())
+    mounts = compose["services"]["companion"]["volumes"]
+    assert "runs:/home/col/runs" in mounts
+    assert "runs" in compose["volumes"] and not (compose["volumes"]["runs"] or {}).get("external")
+    assert "--run-dir runs/compose" in compose["services"]["companion"]["command"]
+    assert re.search(r"^WORKDIR /home/col$", "\n".join(stages()["runtime"]), re.MULTILINE)
 
 
 def test_image_check_is_a_make_target_that_ci_does_not_run() -> None:
