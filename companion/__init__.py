@@ -6,3 +6,10 @@ scripted pilots), ``control`` (arbiter, safety, the episode loop), ``learning`` 
 dataset, learner, checkpoints), ``experiment`` (the paper's grid), ``rl`` (PPO baseline),
 ``testing`` (fakes for tests). ``app`` wires them, ``cli`` is the ``col`` command.
 """
+
+
+def install_hint(extra: str) -> str:
+    """How to add an optional dependency group. The distribution is not on a package index, so
+    ``pip install cycle-of-learning[...]`` finds nothing: it installs from a checkout or a wheel."""
+    return (f"pip install '.[{extra}]' in the project's folder (or, from a built wheel, "
+            f"pip install 'cycle_of_learning-VERSION-py3-none-any.whl[{extra}]'); see docs/runtime.md")

@@ -118,7 +118,7 @@ def test_export_without_the_onnx_extra_says_what_to_install(tmp_path: Path) -> N
     base = [sys.executable, "-m", "companion.cli", "export", str(checkpoint)]
     onnx = subprocess.run([*base, "--format", "onnx"], env=lean_env(tmp_path), capture_output=True, text=True,
                           timeout=120)
-    assert onnx.returncode == 2 and "cycle-of-learning[onnx]" in onnx.stderr
+    assert onnx.returncode == 2 and "pip install '.[onnx]'" in onnx.stderr
     npz = subprocess.run([*base, "--format", "npz"], env=lean_env(tmp_path), capture_output=True, text=True,
                          timeout=120)
     assert npz.returncode == 0, npz.stderr[-2000:]

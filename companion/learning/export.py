@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from companion import install_hint
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.checkpoint import (
@@ -45,7 +46,7 @@ def _onnx() -> Any:
     try:
         import onnx
     except ImportError:
-        raise ConfigError("ONNX export needs the onnx package: pip install 'cycle-of-learning[onnx]'") from None
+        raise ConfigError(f"ONNX export needs the onnx extra: {install_hint('onnx')}") from None
     return onnx
 
 

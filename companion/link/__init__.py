@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
+from companion import install_hint
 from companion.config import LinkConfig
 from companion.errors import ConfigError
 from companion.link.base import LinkStats, SetpointLimits, VehicleLink, VehicleSnapshot
@@ -49,4 +50,4 @@ def _require_mavsdk() -> None:
     import importlib.util
 
     if importlib.util.find_spec("mavsdk") is None:
-        raise ConfigError("the MAVSDK link needs the mavsdk package: pip install 'cycle-of-learning[mavsdk]'")
+        raise ConfigError(f"the MAVSDK link needs the mavsdk extra: {install_hint('mavsdk')}")

@@ -1,5 +1,5 @@
 """An environment in which the packages of the optional extras cannot be imported, as on a lean
-install (``pip install cycle-of-learning``): for tests and benchmarks of the flight runtime
+install (``pip install .`` in the project's folder, no extras): for tests and benchmarks of the flight runtime
 without a second virtual environment.
 
 The block is a ``sitecustomize`` module on ``PYTHONPATH``: it puts a finder at the head of

@@ -6,6 +6,7 @@ from __future__ import annotations
 import inspect
 import json
 import stat
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from companion.cli import app, export_cmd
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
-from companion.learning.export import DEFAULT_OPSET, export_checkpoint
+from companion.learning.export import DEFAULT_OPSET, check_opset, export_checkpoint
 from companion.learning.policy import Normalisation, PolicyNet
 from tests.learning.test_checkpoint import umask
 
@@ -119,3 +120,11 @@ def test_exports_are_readable_by_others_under_the_usual_umask(checkpoint: tuple[
         written = export_checkpoint(path, fmt, tmp_path / "out" / f"policy.{fmt}")
     assert stat.S_IMODE(written.stat().st_mode) == 0o644
     assert sorted(p.name for p in written.parent.iterdir()) == [written.name]  # no temporary left
+
+
+def test_without_onnx_the_hint_installs_from_the_project_not_a_package_index(monkeypatch) -> None:
+    """``cycle-of-learning`` is not on PyPI: the hint names the checkout (or a built wheel)."""
+    monkeypatch.setitem(sys.modules, "onnx", None)  # import onnx raises ImportError
+    with pytest.raises(ConfigError) as err:
+        check_opset(DEFAULT_OPSET)
+    assert "pip install '.[onnx]'" in str(err.value) and "pip install 'cycle-of-learning" not in str(err.value)

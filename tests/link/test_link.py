@@ -714,3 +714,14 @@ def test_an_ardupilot_dialect_message_can_be_requested_and_asking_for_truth_neve
     assert fake.requested_intervals_us().get(164) == pytest.approx(200_000)  # SIMSTATE is ardupilotmega's
     ask_for_truth(link, "ARDUPILOTMEGA")  # the fake answers no GPS_GLOBAL_ORIGIN: logged, not raised
     ask_for_truth(link, "PX4")
+
+
+def test_without_mavsdk_the_hint_installs_from_the_project(monkeypatch) -> None:
+    """The distribution is not on a package index: the hint says ``pip install '.[mavsdk]'``."""
+    import sys
+
+    from companion.link import _require_mavsdk
+
+    monkeypatch.setitem(sys.modules, "mavsdk", None)
+    with pytest.raises(ConfigError, match=r"pip install '\.\[mavsdk\]'"):
+        _require_mavsdk()
