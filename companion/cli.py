@@ -83,7 +83,7 @@ def fly(
     pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
-    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), ask (half each; the policy holds and asks for help when unsure, needs [companion.learner] ensemble_members >= 2), eval (policy alone)")] = "demo",
+    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), ask (half each; the policy holds and asks for help when unsure, needs \\[companion.learner] ensemble_members >= 2), eval (policy alone)")] = "demo",
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
@@ -214,7 +214,7 @@ def export_cmd(
     opset: Annotated[int, typer.Option("--opset", help="ONNX opset (13 or newer)")] = 17,
     out: Annotated[Path | None, typer.Option("--out", help="file to write (default: beside the checkpoint, .onnx or .export.npz)")] = None,
 ) -> None:
-    """Write a policy for another runtime: input obs [batch, 15] in raw units, output actions [batch, 4] in (-1, 1)."""
+    """Write a policy for another runtime: input obs \\[batch, 15] in raw units, output actions \\[batch, 4] in (-1, 1)."""
     from companion.learning.export import export_checkpoint
 
     try:
@@ -346,10 +346,10 @@ def experiment(
     workers: Annotated[int | None, typer.Option(min=1, help="trials side by side, each with its own SITL (default: the number of CPUs)")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="results folder; run again with the same folder to resume (default: runs/<config name>)")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="a smoke run: configs/experiment_quick.toml unless --config is given")] = False,
-    backend: Annotated[str, typer.Option("--backend", help="process: local worker processes; ray: Ray tasks on a cluster (pip install '.[cluster]')")] = "process",
+    backend: Annotated[str, typer.Option("--backend", help="process: local worker processes; ray: Ray tasks on a cluster (pip install '.\\[cluster]')")] = "process",
     address: Annotated[str | None, typer.Option("--address", help="with --backend ray: the cluster's address (HOST:PORT of `ray start --head`); default: a local instance")] = None,
     verify: Annotated[Path | None, typer.Option("--verify", help="instead: rerun --trials finished trials of this results folder, chosen at random, and compare their lines byte for byte")] = None,
-    trials: Annotated[int, typer.Option("--trials", min=1, help="with --verify: how many trials to rerun")] = 2,
+    trials: Annotated[int | None, typer.Option("--trials", min=1, help="with --verify: how many trials to rerun (default 2)")] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="with --verify: which trials are chosen (default: at random)")] = None,
     trial: Annotated[list[str] | None, typer.Option("--trial", help="with --verify: rerun this trial (its key, e.g. P3-col-04-s3; repeat for more) instead of --trials at random")] = None,
     verbose: VerboseOpt = False,
@@ -358,14 +358,12 @@ def experiment(
     report (Markdown table beside the paper's numbers, PNG plots) in the results folder."""
     _setup(verbose)
     if verify is not None:
-        _verify(verify, trials, seed, trial or [])
+        _verify(verify, trials or 2, seed, trial or [])
         return
     from companion.experiment.grid import load_experiment
     from companion.experiment.report import write_report
     from companion.experiment.runner import run_grid
 
-    path = config or Path("configs/experiment_quick.toml" if quick else "configs/experiment.toml")
-    out_dir = out or Path("runs") / path.stem
     try:
         setup = load_experiment(path)
         results = run_grid(setup, out_dir, workers or os.cpu_count() or 1, backend=backend,  # type: ignore[arg-type]
@@ -380,6 +378,10 @@ def experiment(
     typer.echo(json.dumps({"trials": len(results), "report": str(report), "results": str(out_dir / "results.jsonl")}))
 
 
+        _refuse_verify_options(trials, seed, trial)
+        _check_backend(backend, address)  # before anything is written into --out
+        path = config or find_config("experiment_quick.toml" if quick else "experiment.toml")
+        out_dir = out or Path("runs") / path.stem
 def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str]) -> None:
     """``col experiment --verify``: exit 1 when a rerun trial writes another line, saying what
     in the numeric environment differs from the one the results were made in."""
@@ -393,6 +395,44 @@ def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str]) -
     except ColError as exc:
         raise _fail(exc) from None
     except KeyboardInterrupt:
+def _refuse_verify_options(trials: int | None, seed: int | None, trial: list[str] | None) -> None:
+    """``--trials``, ``--seed`` and ``--trial`` choose what ``--verify`` reruns: given without it
+    they would be ignored, and the whole grid would run instead of what was asked for."""
+    options = (("--trials", trials), ("--seed", seed), ("--trial", trial or None))
+    given = [name for name, value in options if value is not None]
+    if given:
+        raise ConfigError(f"{', '.join(given)} only apply with --verify RESULTS_DIR (which trials to rerun); "
+                          "to run the grid, leave them out")
+
+
+def _check_backend(backend: str, address: str | None) -> None:
+    from typing import get_args
+
+    from companion.experiment.runner import Backend
+
+    names = get_args(Backend)
+    if backend not in names:
+        raise ConfigError(f"unknown --backend {backend!r}; use {' or '.join(names)}")
+    if address is not None and backend != "ray":
+        raise ConfigError("--address is for --backend ray")
+
+
+def find_config(name: str) -> Path:
+    """A preset of ``configs/`` by name: in the working directory's ``configs/`` (a checkout),
+    else beside the installed package (an editable install, or an image's ``/opt/col/configs``),
+    so that ``col experiment --quick`` works from any folder."""
+    import sys
+
+    here = Path("configs") / name
+    candidates = [here, Path(__file__).resolve().parent.parent / "configs" / name, Path(sys.prefix) / "configs" / name]
+    found = next((c for c in candidates if c.is_file()), None)
+    if found is None:
+        raise ConfigError(f"the preset {here} is neither in this folder nor beside the installed package "
+                          f"({', '.join(str(c.parent) for c in candidates[1:])}); run in the project's folder "
+                          "or pass --config FILE")
+    return found
+
+
         raise typer.Exit(130) from None
     for check in checks:
         typer.echo(f"{check.key}: " + ("identical" if check.identical else f"DIFFERS {check.differences()}"))

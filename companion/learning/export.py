@@ -1,4 +1,4 @@
-"""A policy for other runtimes: ONNX (ONNX Runtime, TensorRT) and a plain NumPy archive.
+"""A policy for other runtimes: ONNX (checked with ONNX Runtime; TensorRT untested) and a plain NumPy archive.
 
 The ONNX graph is built from the frozen snapshot with ``onnx.helper`` (no torch, so the lean
 install plus the ``onnx`` extra can export): input ``obs`` ``float32 [batch, obs_dim]`` in the
