@@ -285,6 +285,8 @@ def console(
     port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port (0: any free port)")] = 8765,
     allow_remote: Annotated[bool, typer.Option("--allow-remote", help="allow a --host other than loopback (needs --token-file)")] = False,
     token_file: Annotated[Path | None, typer.Option("--token-file", help="file holding the token the page and its socket must carry (?token=...)")] = None,
+    allow_host: Annotated[list[str] | None, typer.Option("--allow-host", help="with --allow-remote: a name other machines open the page by (repeatable); requests for any other Host are refused")] = None,
+    rtp: Annotated[str, typer.Option(help="also send the camera as H.264 over RTP to HOST:PORT (a ground station: 127.0.0.1:5600)")] = "",
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
@@ -301,13 +303,23 @@ def console(
     the vehicle of --connect. The page's gamepad (Xbox layout) or keyboard is the person's input."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.console.access import check_console_exposure
+    from companion.console.access import allowed_hosts, check_console_exposure
     from companion.console.server import run_console
     from companion.console.session import ConsoleOptions, ConsoleSession
 
     try:
         token = _read_secret(token_file, "token") if token_file is not None else None
         check_console_exposure(host, allow_remote, token)  # before any SITL or socket
+        if allow_host and not allow_remote:
+            raise typer.BadParameter("--allow-host names other machines use: it needs --allow-remote")
+        hosts = allowed_hosts(host, allow_remote, tuple(allow_host or ()))
+        if rtp:
+            from sitl.rtp import parse_destination
+
+            try:
+                parse_destination(rtp)
+            except ValueError as exc:
+                raise typer.BadParameter(str(exc), param_hint="--rtp") from None
         cfg = _load(config)
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
@@ -318,7 +330,8 @@ def console(
                 raise typer.BadParameter(f"--start takes CONDITION:EPISODES with demo, int or col, got {start!r}")
             autostart = (cond, int(count))
         opts = ConsoleOptions(run_dir=run_dir or default_run_dir(cfg, "console"), connection=connect, simulator=simulator,
-                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures)
+                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures,
+                              rtp=rtp)
 
         def ready(url: str) -> None:
             url = f"{url}?token={token}" if token else url
@@ -326,7 +339,7 @@ def console(
             typer.echo(f"open {url} in a browser; runs write to {opts.run_dir}; Ctrl-C stops", err=True)
 
         run_console(lambda publish, frame: ConsoleSession(cfg, opts, publish, frame), host, port, ready, autostart,
-                    token)
+                    token, hosts)
     except ColError as exc:
         raise _fail(exc) from None
     except OSError as exc:
@@ -365,6 +378,10 @@ def experiment(
     from companion.experiment.runner import run_grid
 
     try:
+        _refuse_verify_options(trials, seed, trial)
+        _check_backend(backend, address)  # before anything is written into --out
+        path = config or find_config("experiment_quick.toml" if quick else "experiment.toml")
+        out_dir = out or Path("runs") / path.stem
         setup = load_experiment(path)
         results = run_grid(setup, out_dir, workers or os.cpu_count() or 1, backend=backend,  # type: ignore[arg-type]
                            address=address)
@@ -378,23 +395,6 @@ def experiment(
     typer.echo(json.dumps({"trials": len(results), "report": str(report), "results": str(out_dir / "results.jsonl")}))
 
 
-        _refuse_verify_options(trials, seed, trial)
-        _check_backend(backend, address)  # before anything is written into --out
-        path = config or find_config("experiment_quick.toml" if quick else "experiment.toml")
-        out_dir = out or Path("runs") / path.stem
-def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str]) -> None:
-    """``col experiment --verify``: exit 1 when a rerun trial writes another line, saying what
-    in the numeric environment differs from the one the results were made in."""
-    import tempfile
-
-    from companion.experiment.verify import environment_differences, verify
-
-    try:
-        with tempfile.TemporaryDirectory(prefix="col-verify-") as work:
-            checks = verify(results_dir, trials, Path(work), seed, keys)
-    except ColError as exc:
-        raise _fail(exc) from None
-    except KeyboardInterrupt:
 def _refuse_verify_options(trials: int | None, seed: int | None, trial: list[str] | None) -> None:
     """``--trials``, ``--seed`` and ``--trial`` choose what ``--verify`` reruns: given without it
     they would be ignored, and the whole grid would run instead of what was asked for."""
@@ -433,6 +433,19 @@ def find_config(name: str) -> Path:
     return found
 
 
+def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str]) -> None:
+    """``col experiment --verify``: exit 1 when a rerun trial writes another line, saying what
+    in the numeric environment differs from the one the results were made in."""
+    import tempfile
+
+    from companion.experiment.verify import environment_differences, verify
+
+    try:
+        with tempfile.TemporaryDirectory(prefix="col-verify-") as work:
+            checks = verify(results_dir, trials, Path(work), seed, keys)
+    except ColError as exc:
+        raise _fail(exc) from None
+    except KeyboardInterrupt:
         raise typer.Exit(130) from None
     for check in checks:
         typer.echo(f"{check.key}: " + ("identical" if check.identical else f"DIFFERS {check.differences()}"))
