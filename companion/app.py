@@ -40,9 +40,10 @@ from companion.learning.runners import BudgetedLearner, LearnerThread, make_runn
 from companion.learning.snapshot import PolicySnapshot
 from companion.link import open_link
 from companion.link.base import VehicleLink
+from companion.link.connection import parse_connection
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.signing import read_key
-from companion.run_folder import prepare_run_dir
+from companion.run_folder import prepare_run_dir, removed_if_unused
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
@@ -342,19 +343,20 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     cfg = asking_config(cfg, opts.condition)
     lockstep = _lockstep_for(opts)
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
-    initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None  # before any folder is made
-    prepare_run_dir(run_dir)  # unwritable: a clear error before any SITL, link or file
-    result = RunResult(run_dir)
-    recorder = _recorder(opts, control)
-    control = control or recorder
-    first = opts.first_episode or next_episode(run_dir)
-    append_record(run_dir, command=sys.argv, first_episode=first)  # what its numbers were computed with
-    if initial is None and opts.learn and first > 0:
-        initial = _resume_policy(run_dir, first)
+    initial = _checked_start(cfg, opts)
     with contextlib.ExitStack() as stack:
         if human is None:
             human = build_human(opts.pilot, cfg)  # an unknown pilot or a missing gamepad: before any SITL
         stack.callback(human.close)
+        stack.enter_context(removed_if_unused(run_dir))  # a run that fails before it flew leaves no folder
+        prepare_run_dir(run_dir)  # unwritable: a clear error before any SITL, link or file
+        result = RunResult(run_dir)
+        recorder = _recorder(opts, control)
+        control = control or recorder
+        first = opts.first_episode or next_episode(run_dir)
+        append_record(run_dir, command=sys.argv, first_episode=first)  # what its numbers were computed with
+        if initial is None and opts.learn and first > 0:
+            initial = _resume_policy(run_dir, first)
         opened = stack.enter_context(vehicle(cfg, opts, lockstep, run_dir))
         link, simulator, camera = opened.link, opened.simulator, opened.camera
         dataset = HumanDataset(run_dir / "human.csv" if opts.record else None)
@@ -411,6 +413,15 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     if recorder is not None:
         write_pictures(recorder, result, cfg, opts.condition)
     return result
+
+
+def _checked_start(cfg: CompanionConfig, opts: RunOptions) -> PolicySnapshot | None:
+    """The policy to start from, after refusing what a user can mistype (a missing checkpoint,
+    a connection string no link accepts) before any folder is made, SITL started or port opened."""
+    initial = load_checkpoint(opts.checkpoint)[0] if opts.checkpoint else None
+    if opts.connection is not None:
+        parse_connection(opts.connection, cfg.link.baud)
+    return initial
 
 
 def _finish_episode(record: EpisodeRecord, phase: Phase, run_dir: Path, opts: RunOptions, cfg: CompanionConfig,

@@ -162,3 +162,56 @@ def test_ctrl_c_leaves_the_vehicle_safe_before_the_link_closes(tmp_path: Path) -
     with pytest.raises(KeyboardInterrupt):
         run_episodes(cfg, opts, on_episode=interrupt, vehicle=opener)
     assert closed == ["mode AUTO.LOITER"]  # held (the configured policy), then the link closed
+
+
+def test_an_unknown_pilot_or_connection_leaves_no_run_folder(tmp_path: Path) -> None:
+    run_dir = tmp_path / "runs" / "r"
+    with pytest.raises(ConfigError, match="unknown pilot"):
+        run_episodes(CompanionConfig(), RunOptions(pilot="bob", episodes=1, run_dir=run_dir))
+    with pytest.raises(ConfigError, match="unknown scheme 'bogus'"):
+        run_episodes(CompanionConfig(), RunOptions(connection="bogus://x", episodes=1, run_dir=run_dir))
+    assert list(tmp_path.iterdir()) == []
+
+
+def _failing_opener(error: Exception):  # type: ignore[no-untyped-def]
+    """A vehicle that fails to open after the run folder exists (a link that never answers)."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def opener(cfg, opts, lockstep, run_dir):  # type: ignore[no-untyped-def]
+        (run_dir / "session.tlog").touch()  # opened, nothing received
+        raise error
+        yield  # pragma: no cover
+
+    return opener
+
+
+def test_a_run_that_fails_before_flying_removes_the_folders_it_made(tmp_path: Path) -> None:
+    run_dir = tmp_path / "runs" / "new"
+    opts = RunOptions(pilot="none", condition="eval", episodes=1, run_dir=run_dir, learn=False)
+    with pytest.raises(ConfigError, match="no heartbeat"):
+        run_episodes(CompanionConfig(), opts, vehicle=_failing_opener(ConfigError("no heartbeat")))
+    assert list(tmp_path.iterdir()) == []  # runs/ was made for this run too
+
+
+def test_a_failed_start_keeps_a_folder_that_existed_or_holds_data(tmp_path: Path) -> None:
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    opts = RunOptions(pilot="none", condition="eval", episodes=1, run_dir=kept, learn=False)
+    with pytest.raises(ConfigError):
+        run_episodes(CompanionConfig(), opts, vehicle=_failing_opener(ConfigError("no heartbeat")))
+    assert kept.is_dir()
+
+    import contextlib
+
+    @contextlib.contextmanager
+    def telemetry_then_error(cfg, opts, lockstep, run_dir):  # type: ignore[no-untyped-def]
+        (run_dir / "session.tlog").write_bytes(b"\xfd" * 40)  # something came in: worth keeping
+        raise ConfigError("camera failed")
+        yield  # pragma: no cover
+
+    fresh = tmp_path / "fresh"
+    opts = RunOptions(pilot="none", condition="eval", episodes=1, run_dir=fresh, learn=False)
+    with pytest.raises(ConfigError, match="camera failed"):
+        run_episodes(CompanionConfig(), opts, vehicle=telemetry_then_error)
+    assert (fresh / "session.tlog").stat().st_size == 40

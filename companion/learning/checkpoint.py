@@ -181,7 +181,8 @@ def load_checkpoint(path: str | Path, *, obs_dim: int | None = OBS_DIM,
 
 def _read_arrays(p: Path) -> dict[str, np.ndarray]:
     if not p.is_file():
-        raise CheckpointError(f"checkpoint {p} does not exist; pass a file written by save_checkpoint")
+        raise CheckpointError(f"checkpoint {p} does not exist; pass a policy written by col fly, col demo or "
+                              "col experiment (RUN/checkpoints/episode_NNN.npz)")
     try:
         with np.load(p, allow_pickle=False) as npz:
             return {name: npz[name] for name in npz.files}

@@ -3,7 +3,9 @@
 Accepted: ``udpin:HOST:PORT`` (listen), ``udpout:HOST:PORT`` (send first), ``udp:HOST:PORT``
 (as MAVProxy: listen), ``tcp:HOST:PORT`` (client), ``tcpin:HOST:PORT`` (server), and a serial
 device with an optional baud rate: ``/dev/ttyACM0``, ``/dev/ttyACM0,57600``,
-``/dev/ttyUSB0:921600``, ``serial:/dev/ttyUSB0:57600``, ``COM3``.
+``/dev/ttyUSB0:921600``, ``serial:/dev/ttyUSB0:57600``, ``COM3``. MAVSDK's spelling of the same
+(``udpin://0.0.0.0:14540``, ``serial:///dev/ttyUSB0:57600``) is accepted too; anything else is a
+clear :class:`ConfigError` naming these forms, before a socket or a device is touched.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from companion.errors import ConfigError, LinkError
 
 NETWORK_SCHEMES = ("udpin", "udpout", "udp", "tcp", "tcpin")
 DEFAULT_BAUD = 57600
+ACCEPTED = ("udpin:HOST:PORT, udpout:HOST:PORT, udp:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or a serial "
+            "device (/dev/ttyACM0,57600, serial:/dev/ttyUSB0:57600, COM3)")
 
 
 @dataclass(frozen=True)
@@ -63,15 +67,26 @@ def parse_connection(text: str, baud: int | None = None) -> ConnectionSpec:
             "empty connection string; use e.g. udpin:0.0.0.0:14540 or /dev/ttyACM0,57600"
         )
     scheme, sep, rest = text.partition(":")
-    if sep and scheme.lower() in NETWORK_SCHEMES:
-        return _network(scheme.lower(), rest, text)
-    if sep and scheme.lower() == "serial":
+    scheme = scheme.lower()
+    if sep and rest.startswith("//") and scheme in (*NETWORK_SCHEMES, "serial"):
+        rest = rest[2:]  # MAVSDK's URL spelling of the same connection
+    if sep and scheme in NETWORK_SCHEMES:
+        return _network(scheme, rest, text)
+    if sep and scheme == "serial":
         spec = _serial(rest, text)
-    else:
+    elif _is_device(text):
         spec = _serial(text, text)
+    else:  # bogus://x or a misspelt scheme: not a device pymavlink should try to open
+        what = f"unknown scheme {scheme!r}" if sep else "not a connection string"
+        raise ConfigError(f"connection {text!r}: {what}; use {ACCEPTED}")
     if baud is not None and not re.search(r"[,:]\d+$", text):
         spec = ConnectionSpec("serial", spec.device, baud)
     return spec
+
+
+def _is_device(text: str) -> bool:
+    """A serial device as the systems name them: a path (``/dev/ttyACM0``, ``./pty``) or ``COMn``."""
+    return text.startswith(("/", ".")) or re.match(r"com\d+", text, re.IGNORECASE) is not None
 
 
 def open_mavlink(spec: ConnectionSpec, source_system: int, source_component: int) -> Any:
@@ -92,10 +107,10 @@ def open_mavlink(spec: ConnectionSpec, source_system: int, source_component: int
             autoreconnect=spec.kind in ("tcp", "serial"),
         )
     except (OSError, ValueError) as exc:
-        raise LinkError(
-            f"cannot open MAVLink connection {spec.device!r}: {exc}. Check that the port is free "
-            "(another ground station?), the device exists and you may open it (dialout group)"
-        ) from exc
+        advice = ("Check that the address is one of this machine's and the port is free (another "
+                  "ground station?)" if spec.is_network else
+                  "Check that the device exists and that you may open it (the dialout group)")
+        raise LinkError(f"cannot open MAVLink connection {spec.device!r}: {exc}. {advice}") from exc
     conn.mav = dialect.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
     conn.mav.robust_parsing = True
     conn.WIRE_PROTOCOL_VERSION = "2.0"

@@ -62,6 +62,9 @@ def make_link(fake: FakeVehicle) -> Iterator[Callable[..., MavlinkLink]]:
         ("/dev/ttyUSB0:115200", "serial", "/dev/ttyUSB0", 115200),
         ("serial:/dev/ttyUSB0:57600", "serial", "/dev/ttyUSB0", 57600),
         ("/dev/ttyUSB0", "serial", "/dev/ttyUSB0", 57600),
+        ("COM3", "serial", "COM3", 57600),
+        ("udpin://0.0.0.0:14540", "udpin", "udpin:0.0.0.0:14540", 57600),  # MAVSDK's spelling
+        ("serial:///dev/ttyUSB0:921600", "serial", "/dev/ttyUSB0", 921600),
     ],
 )
 def test_connection_strings_parse_as_mavlink_tools_write_them(text, kind, device, baud) -> None:
@@ -78,6 +81,16 @@ def test_serial_baud_from_config_applies_only_without_suffix() -> None:
 def test_bad_connection_strings_say_what_is_expected(text: str) -> None:
     with pytest.raises(ConfigError, match="connection|empty"):
         parse_connection(text)
+
+
+@pytest.mark.parametrize("text", ["bogus://x", "udpn:127.0.0.1:14540", "localhost"])
+def test_unknown_schemes_are_refused_naming_the_accepted_forms(text: str) -> None:
+    """Not handed to pymavlink as a serial device (an int() error and advice about dialout)."""
+    with pytest.raises(ConfigError) as err:
+        parse_connection(text)
+    message = str(err.value)
+    assert text in message and "udpin:HOST:PORT" in message and "/dev/ttyACM0" in message
+    assert "int()" not in message and "dialout" not in message
 
 
 def test_px4_modes_round_trip_and_aliases() -> None:
