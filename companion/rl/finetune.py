@@ -37,7 +37,14 @@ from companion.learning.checkpoint import load_checkpoint, save_checkpoint
 from companion.learning.dataset import load_csv
 from companion.learning.policy import PolicyNet, PolicySnapshot
 from companion.rl.gym_env import LandingEnv
-from companion.rl.ppo import EVAL_SEED, EpisodeHook, evaluate, train
+from companion.rl.ppo import (
+    EVAL_SEED,
+    EpisodeHook,
+    evaluate,
+    recorded_settings,
+    refuse_other_settings,
+    train,
+)
 from companion.rl.vec_env import make_vec_env
 
 ENV_FROM_POLICY = (1, 0, 3, 2)
@@ -202,18 +209,21 @@ def run_finetune(checkpoint: Path, settings: FinetuneSettings, out_dir: Path, cf
                  on_episode: EpisodeHook | None = None) -> dict[str, Any]:
     """Evaluate the checkpoint, fine-tune it, evaluate again; ``results.json`` and ``finetuned.npz``
     (a CoL checkpoint ``col eval`` flies) in ``out_dir``. A finished folder is returned as is; an
-    interrupted one continues from its last PPO update."""
+    interrupted one continues from its last PPO update; either only with the settings, checkpoint
+    and dataset it was started with (others are refused before anything else)."""
     cfg = cfg or CompanionConfig()
     out_dir.mkdir(parents=True, exist_ok=True)
+    data_path = dataset or dataset_beside(checkpoint)
+    recorded = _check_same(out_dir, settings, checkpoint, data_path)
     if (out_dir / "results.json").exists():
         return dict(json.loads((out_dir / "results.json").read_text()))
     snapshot, meta = load_checkpoint(checkpoint)
-    data_path = dataset or dataset_beside(checkpoint)
     if settings.bc_weight > 0 and not data_path.is_file():
         raise ConfigError(f"no human dataset at {data_path} for the behaviour-cloning term; pass --dataset "
                           "or --bc-weight 0")
     obs, actions = human_dataset(data_path) if settings.bc_weight > 0 else (np.zeros((0, 15)), np.zeros((0, 4)))
-    _check_same(out_dir, settings, checkpoint, data_path)
+    if not recorded:  # the inputs are good: the folder now belongs to this run
+        (out_dir / "settings.json").write_text(json.dumps(_settings_of(settings, checkpoint, data_path)) + "\n")
     torch.set_num_threads(cfg.learner.torch_threads)
     before = _evaluated(out_dir / "before.json", snapshot, settings, cfg, config_path)
     venv = make_vec_env(4, cfg, settings.n_envs, config_path, inprocess=settings.inprocess)
@@ -274,14 +284,22 @@ class SnapshotActor:
         return self.snapshot.act(observation)[..., list(ENV_FROM_POLICY)], None
 
 
-def _check_same(out_dir: Path, settings: FinetuneSettings, checkpoint: Path, dataset: Path) -> None:
-    path = out_dir / "settings.json"
-    now = {**asdict(settings), "checkpoint": str(checkpoint), "dataset": str(dataset)}
-    if path.exists():
-        if json.loads(path.read_text()) != now:
-            raise ConfigError(f"{out_dir} holds a fine-tuning run with other settings; use another --out")
-    else:
-        path.write_text(json.dumps(now) + "\n")
+def _settings_of(settings: FinetuneSettings, checkpoint: Path, dataset: Path) -> dict[str, Any]:
+    return {**asdict(settings), "checkpoint": str(checkpoint), "dataset": str(dataset)}
+
+
+def _check_same(out_dir: Path, settings: FinetuneSettings, checkpoint: Path, dataset: Path) -> bool:
+    """A folder continues, or reports, only the fine-tuning run it was started for; False for a
+    folder no run has claimed yet."""
+    now = _settings_of(settings, checkpoint, dataset)
+    recorded = recorded_settings(out_dir)
+    if recorded is None:
+        return False
+    if not (out_dir / "settings.json").exists():  # results.json keeps the paths beside its settings
+        results = json.loads((out_dir / "results.json").read_text())
+        recorded = {**recorded, "checkpoint": results.get("checkpoint"), "dataset": results.get("dataset")}
+    refuse_other_settings(out_dir, {**asdict(FinetuneSettings()), **recorded}, now)  # added since: defaults
+    return True
 
 
 def _logging(log_file: Any, on_episode: EpisodeHook | None) -> EpisodeHook:

@@ -226,13 +226,15 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
             workers: int | None = None) -> dict[str, Any]:
     """Train, save ``model.zip`` and ``train_episodes.jsonl``, evaluate, write ``results.json``.
     A folder with ``results.json`` is done (returned as is); one with a checkpoint continues.
+    Either only for the settings it was started with: others are refused first, so a finished
+    run is never reported as the answer to a run with other options.
     ``workers``: processes the ``n_envs`` envs run in (default one per env); speed only, the
     episodes are the same (:mod:`companion.rl.grouped_vec_env`), so it is not a setting."""
     cfg = cfg or CompanionConfig()
     out_dir.mkdir(parents=True, exist_ok=True)
+    _check_same_settings(out_dir, settings)
     if (out_dir / "results.json").exists():
         return dict(json.loads((out_dir / "results.json").read_text()))
-    _check_same_settings(out_dir, settings)
     torch.set_num_threads(cfg.learner.torch_threads)
     venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess,
                         workers=workers)
@@ -277,14 +279,32 @@ def evaluate_checkpoint(out_dir: Path, cfg: CompanionConfig | None = None, confi
 
 
 def _check_same_settings(out_dir: Path, settings: PpoSettings) -> None:
-    """A folder continues only the run it was started for."""
-    path = out_dir / "settings.json"
-    if path.exists():
-        before = {**asdict(PpoSettings()), **json.loads(path.read_text())}  # settings added since: their defaults
-        if before != asdict(settings):
-            raise ConfigError(f"{out_dir} holds a run with other settings ({before}); use another --out")
-    else:
-        path.write_text(json.dumps(asdict(settings)) + "\n")
+    """A folder continues, or reports, only the run it was started for."""
+    recorded = recorded_settings(out_dir)
+    if recorded is None:
+        (out_dir / "settings.json").write_text(json.dumps(asdict(settings)) + "\n")
+        return
+    refuse_other_settings(out_dir, {**asdict(PpoSettings()), **recorded}, asdict(settings))  # added since: defaults
+
+
+def recorded_settings(out_dir: Path) -> dict[str, Any] | None:
+    """The settings a run folder was started with: ``settings.json``, else those its
+    ``results.json`` records (a finished run from before settings.json); None for a new folder."""
+    if (out_dir / "settings.json").exists():
+        return dict(json.loads((out_dir / "settings.json").read_text()))
+    if (out_dir / "results.json").exists():
+        return dict(json.loads((out_dir / "results.json").read_text()).get("settings", {}))
+    return None
+
+
+def refuse_other_settings(out_dir: Path, before: dict[str, Any], now: dict[str, Any]) -> None:
+    """ConfigError naming each setting in which ``now`` differs from the run in ``out_dir``."""
+    changed = [f"{name}: the run has {before.get(name)!r}, asked {now.get(name)!r}"
+               for name in sorted(set(before) | set(now)) if before.get(name) != now.get(name)]
+    if changed:
+        state = "finished" if (out_dir / "results.json").exists() else "unfinished"
+        raise ConfigError(f"{out_dir} holds a {state} run with other settings ({'; '.join(changed)}); "
+                          "use another --out, or the run's own options to continue or show it")
 
 
 def random_policy(action_dims: int, episodes: int, cfg: CompanionConfig | None = None,
