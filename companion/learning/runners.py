@@ -14,6 +14,7 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 from companion.learning.learner import Learner, LearnerState
 from companion.learning.learner_process import LearnerProcess
@@ -78,11 +79,16 @@ class ControlTickGuard:
     ``guard_s`` before the next expected tick until that tick is reported, or until
     ``guard_s`` after it at the latest, so a control loop that stops ticking never stalls
     learning. Without reported ticks it never pauses.
+
+    ``clock`` (seconds, ``time.perf_counter`` by default) is the one time source, so that tests
+    can check the windows on a clock of their own instead of a loaded machine's sleeps.
     """
 
-    def __init__(self, guard_s: float, period_s: float | None = None) -> None:
+    def __init__(self, guard_s: float, period_s: float | None = None,
+                 clock: Callable[[], float] = time.perf_counter) -> None:
         self.guard_s = guard_s
         self.period_s = period_s
+        self._clock = clock
         self._fixed_period = period_s is not None
         self._cond = threading.Condition(threading.Lock())
         self._ticks = 0
@@ -91,10 +97,10 @@ class ControlTickGuard:
     def tick(self, started_s: float | None = None) -> None:
         """Called by the control loop once per tick (cheap: a lock and a notify).
 
-        ``started_s``: ``time.perf_counter()`` when the tick began, if this is called later in
-        the tick; the window protects the start of the next tick.
+        ``started_s``: the clock's time when the tick began, if this is called later in the
+        tick; the window protects the start of the next tick.
         """
-        now = time.perf_counter() if started_s is None else started_s
+        now = self._clock() if started_s is None else started_s
         with self._cond:
             if self._last_tick_s is not None and not self._fixed_period:
                 interval = now - self._last_tick_s
@@ -105,20 +111,29 @@ class ControlTickGuard:
             self._ticks += 1
             self._cond.notify_all()
 
-    def pause(self) -> float:
-        """Block while a control tick is imminent; returns the seconds spent waiting."""
+    def wait_limit_s(self, now: float) -> float:
+        """How long :meth:`pause` at clock time ``now`` may block: until ``guard_s`` after the
+        expected tick whose window ``[tick - guard_s, tick + guard_s)`` holds ``now``; 0 outside."""
         last, period = self._last_tick_s, self.period_s
         if self.guard_s <= 0 or last is None or not period:
             return 0.0
-        now = time.perf_counter()
-        # the first expected tick whose window [tick - guard, tick + guard] has not passed
+        # the first expected tick whose window has not passed
         next_tick = last + period * max(1, math.floor((now - self.guard_s - last) / period) + 1)
         if not next_tick - self.guard_s <= now < next_tick + self.guard_s:
             return 0.0
+        return next_tick + self.guard_s - now
+
+    def pause(self) -> float:
+        """Block while a control tick is imminent, until it is reported or the window ends;
+        returns the clock seconds spent waiting."""
+        now = self._clock()
+        limit_s = self.wait_limit_s(now)
+        if limit_s <= 0.0:
+            return 0.0
         with self._cond:
             seen = self._ticks
-            self._cond.wait_for(lambda: self._ticks != seen, timeout=next_tick + self.guard_s - now)
-        return time.perf_counter() - now
+            self._cond.wait_for(lambda: self._ticks != seen, timeout=limit_s)
+        return self._clock() - now
 
 
 class LearnerThread:
