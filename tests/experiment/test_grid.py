@@ -231,7 +231,7 @@ def test_one_tiny_trial_on_the_lockstep_sitl(tmp_path: Path) -> None:
     setup = quick_setup(participants=("P1",), conditions=("col",), interactions=(2,), eval_runs=2)
     trial = Trial("P1", "col", 2, 0)
     r = run_trial(setup, trial, tmp_path)
-    assert r.status == "ok" and r.eval_runs == 2 and 0 <= r.eval_successes <= 2
+    assert r.status == "ok" and r.eval_runs == 2
     trial_dir = tmp_path / "trials" / trial.key
     rows = (trial_dir / "train" / "human.csv").read_text().splitlines()
     assert r.human_samples == len(rows) - 1 > 0  # every recorded sample, header aside
@@ -241,6 +241,8 @@ def test_one_tiny_trial_on_the_lockstep_sitl(tmp_path: Path) -> None:
     assert all(e["loss_all"] is not None for e in train)  # the fit is logged after every episode
     evals = [json.loads(line) for line in (trial_dir / "eval_episodes.jsonl").read_text().splitlines()]
     assert [e["seed"] for e in evals] == [100_000, 100_001] and all(e["human_samples"] == 0 for e in evals)
+    # the result counts what the evaluation flights record (0 <= k <= 2 could not fail)
+    assert r.eval_successes == sum(e["success"] is True for e in evals)
     assert (tmp_path / r.final_checkpoint).exists()
     assert [p.name for p in trial_dir.iterdir() if p.name.startswith("tmp")] == []  # evaluation scratch removed
 

@@ -738,3 +738,36 @@ def test_without_mavsdk_the_hint_installs_from_the_project(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "mavsdk", None)
     with pytest.raises(ConfigError, match=r"pip install '\.\[mavsdk\]'"):
         _require_mavsdk()
+
+
+def test_the_link_is_lost_after_link_lost_s_of_silence_on_its_clock(caplog: pytest.LogCaptureFixture) -> None:
+    """The logic the SIGKILL test (tests/reliability/test_killed.py) sees from outside, on a test
+    clock: alive until ``link_lost_s`` after the last message, lost (once, with a warning) from
+    then on, and back with the next message."""
+    import logging
+
+    from companion.link.mavlink_io import MavlinkIO
+
+    now = [0.0]
+    io = MavlinkIO(LinkConfig(link_lost_s=1.5), parse_connection("udpin:127.0.0.1:14540"), None, lambda: now[0])
+    codec = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+
+    def heartbeat():  # type: ignore[no-untyped-def]
+        buf = codec.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 4).pack(codec)
+        return codec.decode(bytearray(buf))
+
+    assert not io.alive()  # nothing heard yet
+    io._handle(heartbeat())
+    with caplog.at_level(logging.WARNING, logger="companion.link.mavlink_io"):
+        for t in (0.0, 1.0, 1.49):
+            now[0] = t
+            io._track_liveness()
+            assert io.alive(), t
+        for t in (1.5, 2.0, 30.0):
+            now[0] = t
+            io._track_liveness()
+            assert not io.alive(), t
+    assert io.counts["link_losses"] == 1
+    assert [r.getMessage() for r in caplog.records] == ["MAVLink link lost: nothing heard for 1.5 s"]
+    io._handle(heartbeat())
+    assert io.alive() and io.counts["reconnections"] == 1
