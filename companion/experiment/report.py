@@ -332,7 +332,9 @@ def variants_markdown(primary: Sequence[TrialResult], variants: dict[str, list[T
     """The endpoints under each numeric variant and their spread, and how far single trials moved."""
     if not variants:
         return []
-    runs = {primary_name: list(primary), **variants}
+    everyone = {primary_name: counted(primary), **{k: counted(v) for k, v in variants.items()}}
+    common = set.intersection(*({r.trial.key for r in rs} for rs in everyone.values()))
+    runs = {name: [r for r in rs if r.trial.key in common] for name, rs in everyone.items()}  # the same trials only
     names = list(runs)
     rows = []
     for a, b, n in ROBUSTNESS_ENDPOINTS:
@@ -351,8 +353,9 @@ def variants_markdown(primary: Sequence[TrialResult], variants: dict[str, list[T
         agreement.append(f"| {primary_name} vs {name} | {both} | {same} | {mean_moved:.2f} | {most:.2f} |")
     header = " | ".join(names)
     return ["## Numeric variants: the same trials under another numeric environment", "",
-            "Each variant ran every trial again with only the numeric environment changed "
-            "(its `environment.jsonl` says how). Mean paired difference in completion points "
+            "Each variant ran the trials again with only the numeric environment changed "
+            "(its `environment.jsonl` says how). Only trials finished in every run are compared "
+            f"({len(common)} here). Mean paired difference in completion points "
             "[95 % BCa interval], as in the paired table.", "",
             f"| endpoint | {header} | spread of the means (points) | intervals excluding 0 |",
             "| --- |" + " ---: |" * len(names) + " ---: | ---: |", *rows, "",
