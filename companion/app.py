@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Literal, Protocol
 
 from colcommon.heap import fix_mmap_threshold, release_free_heap
 from colcommon.numeric_env import append_record
+from companion import install_hint
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
@@ -499,15 +500,22 @@ def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionCo
     written: list[Path] = []
     outcomes = {r.episode: (r.outcome, r.success) for r in result.records}
     pad = cfg.session.pad_ned_m
-    try:
+    try:  # matplotlib, or OpenCV in the lean install
         written.append(plot_flight(recorder.tracks, outcomes, (pad[0], pad[1]), cfg.pilot.pad_radius_m,
                                    result.run_dir / "flight.png", f"{label}: {len(recorder.tracks)} episodes from above"))
-        if recorder.frames:
-            last = recorder.frames[-1].episode
-            written.append(write_episode_video(recorder.frames, result.run_dir / f"episode_{last:03d}.mp4",
-                                               cfg.session.control_rate_hz))
     except Exception as exc:  # pictures are a courtesy: the run's data is already safe
-        log.warning("could not write the run's pictures: %r", exc)
+        log.warning("could not write flight.png: %r", exc)
+    if not recorder.frames:
+        return written
+    last = recorder.frames[-1].episode
+    try:
+        written.append(write_episode_video(recorder.frames, result.run_dir / f"episode_{last:03d}.mp4",
+                                           cfg.session.control_rate_hz))
+    except ImportError:
+        log.warning("no episode_%03d.mp4: the H.264 video needs PyAV, the console extra (%s)", last,
+                    install_hint("console"))
+    except Exception as exc:
+        log.warning("could not write episode_%03d.mp4: %r", last, exc)
     return written
 
 

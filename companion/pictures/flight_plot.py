@@ -26,8 +26,16 @@ def _segments(track: EpisodeTrack) -> list[tuple[str, list[float], list[float]]]
 
 def plot_flight(tracks: Sequence[EpisodeTrack], outcomes: dict[int, tuple[str, bool | None]],
                 pad_ne_m: tuple[float, float], pad_radius_m: float, path: Path, title: str = "") -> Path:
-    """Write the top view (east right, north up) to ``path``; ``outcomes``: episode -> (outcome, success)."""
-    import matplotlib
+    """Write the top view (east right, north up) to ``path``; ``outcomes``: episode -> (outcome, success).
+
+    matplotlib is the ``[train]`` extra: without it (the lean install) OpenCV draws the picture."""
+    try:
+        import matplotlib
+    except ImportError:
+        from companion.pictures.flight_cv import draw_flight
+
+        return draw_flight(tracks, outcomes, pad_ne_m, pad_radius_m, path,
+                           title or f"{len(tracks)} episodes from above", COLOURS)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

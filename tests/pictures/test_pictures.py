@@ -59,3 +59,47 @@ def test_the_video_has_one_frame_per_step(tmp_path: Path) -> None:
     assert len(decoded) == 12 and (decoded[0].width, decoded[0].height) == (640, 480)
     with pytest.raises(ValueError, match="no frames"):
         write_episode_video([], tmp_path / "x.mp4", 10.5)
+
+
+def pixels_near(image: np.ndarray, hex_colour: str, tolerance: int = 30) -> int:
+    from companion.pictures.flight_cv import bgr
+
+    return int(np.count_nonzero(np.all(np.abs(image.astype(int) - bgr(hex_colour)) <= tolerance, axis=2)))
+
+
+def test_without_matplotlib_opencv_draws_flight_png(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lean install has no matplotlib, and the README promises flight.png after every run."""
+    import sys
+
+    from companion.pictures.flight_plot import COLOURS
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib raises ImportError
+    tracks = [track("aaaapppp"), EpisodeTrack(1, "demonstration", [TrackPoint(-2.0, 3.0, 5.0, "person"),
+                                                                    TrackPoint(0.1, 0.1, 0.2, "person")])]
+    path = plot_flight(tracks, {0: ("touchdown", False), 1: ("touchdown", True)}, (0.0, 0.0), 0.5,
+                       tmp_path / "run" / "flight.png", "demo: 2 episodes from above")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    image = cv2.imread(str(path))
+    assert image is not None and image.shape == (704, 704, 3)
+    assert pixels_near(image, COLOURS["policy"]) > 100 and pixels_near(image, COLOURS["person"]) > 100
+    assert pixels_near(image, "#d228d0") > 100  # the pad
+    assert pixels_near(image, "#2e7d32") > 10 and pixels_near(image, "#b71c1c") > 10  # both touchdowns
+
+
+def test_write_pictures_keeps_each_picture_apart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """Without PyAV (the lean install) flight.png is still written, and the log says how to get the video."""
+    import sys
+
+    from companion.app import RunResult, write_pictures
+    from companion.config import CompanionConfig
+    from companion.pictures.recorder import FlightRecorder
+
+    monkeypatch.setitem(sys.modules, "av", None)
+    recorder = FlightRecorder()
+    recorder.tracks.append(track("aapp"))
+    recorder.frames.append(hud_frame(0))
+    result = RunResult(tmp_path)
+    written = write_pictures(recorder, result, CompanionConfig(), "fly demo")
+    assert written == [tmp_path / "flight.png"] and (tmp_path / "flight.png").is_file()
+    assert any("needs PyAV" in r.getMessage() and "'.[console]'" in r.getMessage() for r in caplog.records)
