@@ -285,6 +285,8 @@ def console(
     port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port (0: any free port)")] = 8765,
     allow_remote: Annotated[bool, typer.Option("--allow-remote", help="allow a --host other than loopback (needs --token-file)")] = False,
     token_file: Annotated[Path | None, typer.Option("--token-file", help="file holding the token the page and its socket must carry (?token=...)")] = None,
+    allow_host: Annotated[list[str] | None, typer.Option("--allow-host", help="with --allow-remote: a name other machines open the page by (repeatable); requests for any other Host are refused")] = None,
+    rtp: Annotated[str, typer.Option(help="also send the camera as H.264 over RTP to HOST:PORT (a ground station: 127.0.0.1:5600)")] = "",
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
@@ -301,13 +303,23 @@ def console(
     the vehicle of --connect. The page's gamepad (Xbox layout) or keyboard is the person's input."""
     _setup(verbose)
     from companion.app import default_run_dir
-    from companion.console.access import check_console_exposure
+    from companion.console.access import allowed_hosts, check_console_exposure
     from companion.console.server import run_console
     from companion.console.session import ConsoleOptions, ConsoleSession
 
     try:
         token = _read_secret(token_file, "token") if token_file is not None else None
         check_console_exposure(host, allow_remote, token)  # before any SITL or socket
+        if allow_host and not allow_remote:
+            raise typer.BadParameter("--allow-host names other machines use: it needs --allow-remote")
+        hosts = allowed_hosts(host, allow_remote, tuple(allow_host or ()))
+        if rtp:
+            from sitl.rtp import parse_destination
+
+            try:
+                parse_destination(rtp)
+            except ValueError as exc:
+                raise typer.BadParameter(str(exc), param_hint="--rtp") from None
         cfg = _load(config)
         if camera is not None:
             cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
@@ -318,7 +330,8 @@ def console(
                 raise typer.BadParameter(f"--start takes CONDITION:EPISODES with demo, int or col, got {start!r}")
             autostart = (cond, int(count))
         opts = ConsoleOptions(run_dir=run_dir or default_run_dir(cfg, "console"), connection=connect, simulator=simulator,
-                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures)
+                              config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures,
+                              rtp=rtp)
 
         def ready(url: str) -> None:
             url = f"{url}?token={token}" if token else url
@@ -326,7 +339,7 @@ def console(
             typer.echo(f"open {url} in a browser; runs write to {opts.run_dir}; Ctrl-C stops", err=True)
 
         run_console(lambda publish, frame: ConsoleSession(cfg, opts, publish, frame), host, port, ready, autostart,
-                    token)
+                    token, hosts)
     except ColError as exc:
         raise _fail(exc) from None
     except OSError as exc:

@@ -9,11 +9,17 @@ The console flies a vehicle, so two doors are shut:
   ``ws://127.0.0.1:PORT/ws`` and fly the vehicle. Browsers send an ``Origin`` header with every
   WebSocket handshake, so the socket accepts only its own origin (the scheme, host and port the
   page was served from) and refuses every other one.
+- **DNS rebinding.** A name the attacker controls can resolve to 127.0.0.1; its page is then
+  "same origin" with the console (Origin and Host both say ``attacker.example:PORT``). So every
+  request's ``Host`` must be a name the console answers to: the loopback names, and with
+  ``--allow-remote`` the configured host and ``--allow-host`` names (:func:`allowed_hosts`).
 """
 
 from __future__ import annotations
 
 import hmac
+import ipaddress
+import socket
 from urllib.parse import urlsplit
 
 from colcommon.network import is_loopback
@@ -54,3 +60,62 @@ def origin_ok(origin: str | None, host_header: str | None) -> bool:
         return False
     parts = urlsplit(origin)
     return parts.scheme in ("http", "https") and parts.netloc.lower() == host_header.lower()
+
+
+LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
+WILDCARDS = frozenset({"0.0.0.0", "::", ""})
+
+
+def allowed_hosts(host: str, allow_remote: bool, extra: tuple[str, ...] = ()) -> frozenset[str]:
+    """The names a request's ``Host`` may carry (without port, lower case).
+
+    Loopback names always; with ``allow_remote`` also ``host`` itself and ``extra`` (the names
+    other machines use); a wildcard bind without ``extra`` answers to this machine's own name."""
+    names = set(LOOPBACK_NAMES)
+    if allow_remote:
+        names.update(n.lower() for n in extra)
+        if host.lower() not in WILDCARDS:
+            names.add(host.lower())
+        elif not extra:
+            names.update({socket.gethostname().lower(), socket.getfqdn().lower()})
+    return frozenset(names)
+
+
+def host_name(host_header: str) -> str | None:
+    """The name of a ``Host`` header without its port (``[::1]:8765`` -> ``::1``); None if malformed."""
+    value = host_header.strip().lower()
+    if value.startswith("["):
+        end = value.find("]")
+        if end < 0 or (value[end + 1:] and not value[end + 1:].startswith(":")):
+            return None
+        return value[1:end]
+    name, _, port = value.partition(":")
+    if port and not port.isdigit():
+        return None
+    return name or None
+
+
+def host_ok(host_header: str | None, allowed: frozenset[str]) -> bool:
+    """Is the request addressed to a name this console answers to (no DNS rebinding)?"""
+    if host_header is None:
+        return False
+    name = host_name(host_header)
+    if name is None:
+        return False
+    if name in allowed:
+        return True
+    try:  # 127.0.0.2 etc.: loopback addresses by number cannot be rebound
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
+
+
+def page_url(host: str, port: int, allowed: frozenset[str]) -> str:
+    """The address to print: a wildcard bind is shown as a name other machines can use."""
+    shown = host
+    if host.lower() in WILDCARDS:
+        names = sorted(allowed - LOOPBACK_NAMES)
+        shown = names[0] if names else "127.0.0.1"
+    if ":" in shown:
+        shown = f"[{shown}]"
+    return f"http://{shown}:{port}/"

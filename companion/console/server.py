@@ -1,19 +1,24 @@
 """The console's web server: the page (static HTML/JS, no build step) and one WebSocket.
 
-Down the socket: JSON messages (``hello`` on connect, ``status`` four times a second with the
-SITL's ground truth, ``step`` every control step, ``episode``, ``notice``, ``error``) and camera
-frames as binary messages (:mod:`companion.console.frames`), newest frame first: a slow page
-skips frames, it never delays the others. Up the socket: ``input`` (the gamepad's state, at
-the page's send rate) and ``command`` (start, pause, resume, next, stop, hand_back).
+Down the socket: JSON messages (``hello`` on connect, ``role`` whenever who flies changes,
+``status`` four times a second with the SITL's ground truth, ``step`` every control step,
+``episode``, ``notice``, ``error``) and camera frames as binary messages
+(:mod:`companion.console.frames`), newest frame first: a slow page skips frames, it never delays
+the others. Up the socket: ``role`` (ask for the pilot role, or give it up), ``input`` (the
+gamepad's state, at the page's send rate) and ``command`` (:data:`messages.COMMANDS`).
 
-The most recent page to connect is the pilot; others only watch (their input is ignored).
-When the pilot's socket closes, its input falls silent at once (see :class:`BrowserInput`).
+One pilot at a time, explicitly: a page asks for the role and is told it has it; the role moves
+only when the pilot gives it up or its socket closes (its input falls silent at once, see
+:class:`BrowserInput`, and every page is told). Other pages watch: their input and commands are
+refused with an error, never dropped silently. Every message the console does not act on is
+logged with its reason (:mod:`companion.console.messages`); none can close the socket.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import logging
 from dataclasses import dataclass, field
@@ -22,7 +27,9 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 
-from companion.console.access import origin_ok, token_ok
+from companion.console import messages
+from companion.console.access import LOOPBACK_NAMES, host_ok, origin_ok, page_url, token_ok
+from companion.console.messages import RefusalLog, Refused
 from companion.console.session import ConsoleSession
 from companion.errors import ColError
 
@@ -31,15 +38,18 @@ STATIC = resources.files("companion.console") / "static"
 STATIC_FILES = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
 STATUS_PERIOD_S = 0.25
 MAX_QUEUED = 400  # JSON messages waiting for one page; beyond: the page is dropped
+MAX_FRAME_BYTES = 1 << 20  # aiohttp closes a socket over this; our own limit (8 KiB) answers below it
 _FRAME = object()  # marker in a client's queue: send its newest frame
 
 
 @dataclass(eq=False)
 class _Client:
     ws: web.WebSocketResponse
+    page: int
     queue: asyncio.Queue[object] = field(default_factory=asyncio.Queue)
     frame: bytes | None = None
     frame_queued: bool = False
+    refusals: RefusalLog | None = None
 
     def offer_json(self, text: str) -> bool:
         if self.queue.qsize() >= MAX_QUEUED:
@@ -66,15 +76,18 @@ class _Client:
 
 
 class ConsoleServer:
-    """Owns the aiohttp application, the connected pages and the session's outlet to them."""
+    """Owns the aiohttp application, the connected pages, the pilot role and the session's outlet."""
 
-    def __init__(self, make_session: Any, token: str | None = None) -> None:
+    def __init__(self, make_session: Any, token: str | None = None,
+                 hosts: frozenset[str] = LOOPBACK_NAMES) -> None:
         """``make_session(publish, publish_frame)`` builds the :class:`ConsoleSession`;
-        ``token``: what every request must carry as ``?token=`` (console/access.py)."""
-        self.token = token
+        ``token``: what every request must carry as ``?token=``; ``hosts``: the names a request's
+        ``Host`` may carry (console/access.py)."""
+        self.token, self.hosts = token, hosts
         self.loop: asyncio.AbstractEventLoop | None = None
         self.clients: list[_Client] = []
         self.pilot: _Client | None = None
+        self._pages = itertools.count(1)
         self.session: ConsoleSession = make_session(self.publish, self.publish_frame)
         self.app = web.Application(middlewares=[self._guard])
         self.app.router.add_get("/", self._index)
@@ -98,7 +111,7 @@ class ConsoleServer:
     def _broadcast(self, text: str) -> None:
         for client in list(self.clients):
             if not client.offer_json(text):
-                log.warning("a console page does not keep up; closing its socket")
+                log.warning("console page %d does not keep up; closing its socket", client.page)
                 asyncio.ensure_future(client.ws.close())
 
     def _broadcast_frame(self, data: bytes) -> None:
@@ -123,13 +136,19 @@ class ConsoleServer:
                 continue
             status = self.session.status()
             status["truth"] = await asyncio.to_thread(self.session.truth) if self.session.running else None
+            status["pilot_page"] = self.pilot.page if self.pilot is not None else None
             self._broadcast(json.dumps(status))
 
     # ----- HTTP -------------------------------------------------------------------------------------
     @web.middleware
     async def _guard(self, request: web.Request, handler: Any) -> web.StreamResponse:
-        """The token on the page and the socket (the static files hold no secret); on the
-        socket, the page's own origin only."""
+        """Every request names this console (no DNS rebinding); the token on the page and the
+        socket (the static files hold no secret); on the socket, the page's own origin only."""
+        if not host_ok(request.headers.get("Host"), self.hosts):
+            log.warning("refused a request for Host %r (not a name this console answers to: a DNS "
+                        "rebinding page?)", request.headers.get("Host"))
+            raise web.HTTPForbidden(text="this console answers to its own names only "
+                                         f"({', '.join(sorted(self.hosts))}); see --allow-host")
         if not request.path.startswith("/static/") and not token_ok(request.query.get("token"), self.token):
             raise web.HTTPForbidden(text="this console needs its token: open it as /?token=...")
         if request.path == "/ws" and not origin_ok(request.headers.get("Origin"), request.headers.get("Host")):
@@ -147,51 +166,106 @@ class ConsoleServer:
         return web.Response(text=(STATIC / name).read_text(), content_type=STATIC_FILES[name])
 
     async def _ws(self, request: web.Request) -> web.WebSocketResponse:
-        ws = web.WebSocketResponse(heartbeat=5.0, max_msg_size=1 << 16)
+        ws = web.WebSocketResponse(heartbeat=5.0, max_msg_size=MAX_FRAME_BYTES)
         await ws.prepare(request)
-        client = _Client(ws)
+        client = _Client(ws, next(self._pages))
+        client.refusals = RefusalLog(str(client.page), log)
         self.clients.append(client)
-        self.pilot = client
-        self.session.human.connected()
         sender = asyncio.create_task(client.send_loop())
-        client.offer_json(json.dumps(self.session.hello()))
+        client.offer_json(json.dumps({**self.session.hello(), "role": self._role_of(client)}))
         try:
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
                     self._on_text(client, msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    self._refuse(client, "a binary message; the console takes JSON text only")
                 elif msg.type == WSMsgType.ERROR:
+                    log.warning("console page %d: socket error %r", client.page, ws.exception())
                     break
         finally:
             sender.cancel()
             self.clients.remove(client)
+            client.refusals.flush()
             if self.pilot is client:
-                self.pilot = None
-                self.session.human.disconnected()
-                log.warning("the pilot's console page disconnected")
-                self.publish({"type": "notice", "text": "the pilot's page disconnected"})
+                self._pilot_gone(client, "lost its link")
         return ws
+
+    # ----- the pilot role ----------------------------------------------------------------------
+    def _role_of(self, client: _Client) -> dict[str, Any]:
+        pilot = self.pilot.page if self.pilot is not None else None
+        return {"type": "role", "page": client.page, "role": "pilot" if client is self.pilot else "watch",
+                "pilot_page": pilot}
+
+    def _tell_roles(self) -> None:
+        for client in self.clients:
+            client.offer_json(json.dumps(self._role_of(client)))
+
+    def _take_role(self, client: _Client, want: str) -> None:
+        if want == "pilot":
+            if self.pilot is not None and self.pilot is not client:
+                raise Refused(f"page {self.pilot.page} is the pilot; the role moves only when that page "
+                              "gives it up or loses its link")
+            if self.pilot is None:
+                self.pilot = client
+                self.session.human.connected()
+                log.info("console page %d is the pilot", client.page)
+                self._broadcast(json.dumps({"type": "notice", "text": f"page {client.page} is the pilot"}))
+        elif self.pilot is client:
+            self._pilot_gone(client, "gave up the pilot role")
+            return
+        self._tell_roles()
+
+    def _pilot_gone(self, client: _Client, how: str) -> None:
+        """The pilot left: its input is silent at once (the vehicle holds if the person was flying)."""
+        self.pilot = None
+        self.session.human.disconnected()
+        text = (f"the pilot's page {client.page} {how}: nobody flies from a page; if the person was "
+                "flying, the vehicle holds position")
+        log.warning("%s", text)
+        self._broadcast(json.dumps({"type": "notice", "text": text, "pilot_lost": True}))  # in the loop: before the roles
+        self._tell_roles()
+
+    # ----- messages from a page ------------------------------------------------------------------
+    def _refuse(self, client: _Client, reason: str) -> None:
+        assert client.refusals is not None
+        new = client.refusals.last != reason
+        client.refusals.refused(reason)
+        if new:  # a broken pad at 30 messages/s: the page is told once per run of the same reason
+            client.offer_json(json.dumps({"type": "error", "message": reason}))
 
     def _on_text(self, client: _Client, text: str) -> None:
         try:
-            message = json.loads(text)
-            if not isinstance(message, dict):
-                raise ValueError("a message is a JSON object")
+            message = messages.parse(text)
             kind = message.get("type")
             if kind == "input":
-                if client is self.pilot:
-                    self.session.human.feed(message)
+                checked = messages.check_input(message)
+                if client is not self.pilot:
+                    raise Refused("this page watches: its sticks do not fly (ask for the pilot role)")
+                self.session.human.feed(checked)
             elif kind == "command":
-                self._command(message)
+                name = messages.command_name(message)
+                if client is not self.pilot:
+                    raise Refused(f"only the pilot's page can {name.replace('_', ' ')}; this page watches")
+                self._command(name, message)
+            elif kind == "role":
+                self._take_role(client, messages.role_wanted(message))
             else:
-                raise ValueError(f"unknown message type {kind!r}")
+                raise Refused(f"unknown message type {str(kind)[:40]!r}; use input, command or role")
         except (ValueError, ColError) as exc:
-            client.offer_json(json.dumps({"type": "error", "message": str(exc)}))
+            self._refuse(client, str(exc))
+        except Exception as exc:  # a bug here must not close the pilot's socket
+            log.exception("console page %d: a message could not be handled", client.page)
+            self._refuse(client, f"the console could not handle that message ({type(exc).__name__}); see its log")
 
-    def _command(self, message: dict[str, Any]) -> None:
-        name = message.get("name")
+    def _command(self, name: str, message: dict[str, Any]) -> None:
         s = self.session
         if name == "start":
-            s.start(str(message.get("condition")), message.get("episodes"))  # type: ignore[arg-type]
+            episodes = messages.whole_number(message.get("episodes"), "episodes", 1, 1000)
+            s.start(str(message.get("condition")), episodes, auto=message.get("auto") is True)
+        elif name == "go":
+            s.go()
+        elif name == "auto":
+            s.set_auto(message.get("on") is True)
         elif name in ("pause", "resume"):
             s.pause(name == "pause")
         elif name == "next":
@@ -200,8 +274,8 @@ class ConsoleServer:
             s.stop()
         elif name == "hand_back":
             s.hand_back()
-        else:
-            raise ValueError(f"unknown command {name!r}; use start, pause, resume, next, stop or hand_back")
+        elif name == "discard_last":
+            s.discard_last(str(message.get("reason") or "discarded by the pilot")[:200])
 
 
 async def _serve(server: ConsoleServer, host: str, port: int, on_ready: Any,
@@ -212,9 +286,9 @@ async def _serve(server: ConsoleServer, host: str, port: int, on_ready: Any,
     await site.start()
     bound = runner.addresses  # the ports actually bound (port 0: any free one)
     actual = int(bound[0][1]) if bound else port
-    on_ready(f"http://{host}:{actual}/")
+    on_ready(page_url(host, actual, server.hosts))
     if autostart is not None:
-        server.session.start(*autostart)
+        server.session.start(*autostart, auto=True)
     try:
         await asyncio.Event().wait()  # until cancelled (Ctrl-C, SIGTERM)
     finally:
@@ -222,9 +296,10 @@ async def _serve(server: ConsoleServer, host: str, port: int, on_ready: Any,
 
 
 def run_console(make_session: Any, host: str, port: int, on_ready: Any,
-                autostart: tuple[str, int] | None = None, token: str | None = None) -> None:
+                autostart: tuple[str, int] | None = None, token: str | None = None,
+                hosts: frozenset[str] = LOOPBACK_NAMES) -> None:
     """Serve the console until interrupted; ``on_ready(url)`` once it listens."""
-    server = ConsoleServer(make_session, token)
+    server = ConsoleServer(make_session, token, hosts)
     try:
         asyncio.run(_serve(server, host, port, on_ready, autostart))
     except KeyboardInterrupt:

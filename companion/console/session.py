@@ -5,10 +5,17 @@ map and the per-episode table), pauses between episodes, ends an episode or the 
 page asks, and hands the page's sticks to the run as its human input (:class:`BrowserInput`).
 What it tells the page goes through ``publish`` (JSON-able dicts) and ``publish_frame``
 (camera frames), both callable from any thread.
+
+Between episodes a ready gate waits for the pilot ("go"), unless the run is in auto mode. The
+history (the table and plot) is the run folder's ``episodes.jsonl`` with the console's own notes
+beside it in ``console.jsonl`` (touchdown point, no stick input), read again on restart. The
+pilot may discard the last episode from training (:meth:`HumanDataset.discard_episode`: an
+audit line, nothing deleted).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import threading
@@ -34,6 +41,8 @@ log = logging.getLogger(__name__)
 Publish = Callable[[dict[str, Any]], None]
 PublishFrame = Callable[[bytes], None]
 STOPPED = "stopped"  # the outcome of an episode the operator ended
+NOTES_FILE = "console.jsonl"  # the console's notes per episode, beside episodes.jsonl
+RUNNING_STATES = ("starting", "running", "ready", "paused", "stopping")
 
 
 @dataclass(frozen=True)
@@ -47,7 +56,8 @@ class ConsoleOptions:
     camera_rate_hz: float = 35.0
     seed: int | None = None
     learn: bool = True
-    pictures: bool = True  # each run writes flight.png and its last episode's video
+    pictures: bool = True  # each run writes flight_FIRST-LAST.png and its last episode's video
+    rtp: str = ""  # HOST:PORT: also send the camera as H.264 over RTP (a ground station)
 
 
 @dataclass
@@ -62,23 +72,62 @@ class _RunState:
     phase: str | None = None
     track_ne: list[list[Any]] = field(default_factory=list)  # [north, east, who] per step
     last_step: dict[str, Any] | None = None
+    auto: bool = False  # episodes follow one another without the pilot's "go"
+    ready_for: int | None = None  # the episode waiting for the pilot's "go"
+    stage: str | None = None  # what a starting run is doing (the first step takes seconds)
+    started_wall_s: float | None = None
+    summary: str | None = None  # the message at the end of the run
+
+
+@dataclass
+class _EpisodeWatch:
+    """What the console notices during one episode (for the HUD and its notes)."""
+
+    recorded: int = 0
+    moved: int = 0  # recorded steps with a stick outside the deadband
+    pad_k_px_m: float | None = None  # radius_px x height above the pad at the last full sighting
+
+
+@dataclass(frozen=True)
+class Hud:
+    """What the HUD needs beyond the step: where the pad is, the episode's length, the image."""
+
+    pad_down_m: float = -1.5
+    max_steps: int = 500
+    control_rate_hz: float = 10.5
+    fills_radius_px: float = 200.0  # a pad this big covers a 320x240 image corner to corner
 
 
 def _finite(x: float | None, digits: int = 4) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), digits)
 
 
-def step_message(view: StepView, learner_loss: float | None, samples: int) -> dict[str, Any]:
+def _pad_fills(view: StepView, hud: Hud, watch: _EpisodeWatch | None, height_m: float) -> bool:
+    """No pad seen, but the last full sighting says it is now larger than the image (or the
+    vehicle is on it): "pad fills the image", not "pad not visible"."""
+    if view.observation.pad is not None or watch is None or watch.pad_k_px_m is None:
+        return False
+    return height_m <= 0.05 or watch.pad_k_px_m / height_m >= hud.fills_radius_px
+
+
+def step_message(view: StepView, learner_loss: float | None, samples: int, hud: Hud | None = None,
+                 watch: _EpisodeWatch | None = None) -> dict[str, Any]:
     """One control step as the page's ``step`` message."""
+    hud = hud or Hud()
     obs, d = view.observation, view.decision
     who = "hold" if (d.source == "human" and view.human_hold) else ("person" if d.source == "human" else "policy")
     pad = None if obs.pad is None else {"u": round(obs.pad.u_px, 1), "v": round(obs.pad.v_px, 1),
                                         "r": round(obs.pad.radius_px, 1), "partial": obs.pad.partial}
     n, e, dn = obs.position_ned_m
+    vn, ve, vd = obs.velocity_ned_m_s
+    height = dn * -1.0 + hud.pad_down_m
     return {
         "type": "step", "episode": view.episode, "step": view.step, "phase": view.phase.value,
         "who": who, "recorded": d.record, "tag": d.tag, "override": view.human_override,
-        "altitude_m": round(-dn, 3), "climb_m_s": round(-obs.velocity_ned_m_s[2], 3),
+        "altitude_m": round(-dn, 3), "climb_m_s": round(0.0 - vd, 3), "height_above_pad_m": round(height, 3),
+        "ground_speed_m_s": round(math.hypot(vn, ve), 3), "heading_deg": round(math.degrees(obs.attitude_rad[2]) % 360.0, 1),
+        "time_left_s": round(max(0, hud.max_steps - view.step - 1) / hud.control_rate_hz, 1),
+        "pad_fills_image": _pad_fills(view, hud, watch, height), "frame_number": view.frame_number,
         "position_ne_m": [round(n, 3), round(e, 3)], "yaw_rad": round(obs.attitude_rad[2], 4),
         "pad": pad, "image_size_px": list(obs.image_size_px), "time_boot_ms": obs.time_boot_ms,
         "policy_version": view.policy_version, "loss": _finite(learner_loss, 6), "samples": samples,
@@ -96,11 +145,14 @@ class ConsoleSession:
         self.cfg, self.opts = cfg, opts
         self.publish, self.publish_frame = publish, publish_frame
         self.human = BrowserInput(cfg.pilot)
-        self.records: list[dict[str, Any]] = []
+        self.hud = Hud(cfg.session.pad_ned_m[2], cfg.session.max_steps, cfg.session.control_rate_hz)
+        self.records: list[dict[str, Any]] = load_history(opts.run_dir)
+        self._watch = _EpisodeWatch()
+        self._rtp: Any = None
         self._lock = threading.Lock()
         self._resume = threading.Condition(self._lock)
         self._run = _RunState()
-        self._paused = self._stop = self._next = False
+        self._paused = self._stop = self._next = self._go = False
         self._thread: threading.Thread | None = None
         self._pump: FramePump | None = None
         self._vehicle: Vehicle | None = None
@@ -109,8 +161,9 @@ class ConsoleSession:
         self._recorder: FlightRecorder | None = None  # this run's flight.png and last episode's video
 
     # ----- the page's commands ---------------------------------------------------------------
-    def start(self, condition: str, episodes: int) -> None:
-        """Start a run (ConfigError for a bad request or while one runs)."""
+    def start(self, condition: str, episodes: int, auto: bool = False) -> None:
+        """Start a run (ConfigError for a bad request or while one runs); ``auto``: no ready
+        gate between episodes."""
         if condition not in CONDITIONS or condition == "eval":
             raise ConfigError(f"condition must be demo, int or col, got {condition!r}")
         if not isinstance(episodes, int) or isinstance(episodes, bool) or not 1 <= episodes <= 1000:
@@ -118,12 +171,57 @@ class ConsoleSession:
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 raise ConfigError("a run is already going; stop it first")
-            self._run = _RunState("starting", condition, episodes)
+            self._run = _RunState("starting", condition, episodes, auto=auto, started_wall_s=time.time(),
+                                  stage="starting the simulator and connecting (a few seconds)")
             self._paused = self._stop = self._next = False
+            self._go = True  # Start is the first episode's "go"
             self._thread = threading.Thread(target=self._run_thread, args=(condition, episodes),
                                             name="console-run", daemon=True)
             self._thread.start()
         self._announce(f"starting {condition} with {episodes} episodes")
+
+    def go(self) -> None:
+        """The pilot is ready: the waiting episode starts."""
+        with self._lock:
+            if self._run.state != "ready":
+                raise ConfigError("no episode is waiting for you (go is for the ready gate between episodes)")
+            self._go = True
+            self._resume.notify_all()
+        self._announce("the pilot is ready: the next episode starts")
+
+    def set_auto(self, on: bool) -> None:
+        """Auto mode: episodes follow one another without the pilot's go."""
+        with self._lock:
+            self._run.auto = on
+            self._resume.notify_all()
+        self._announce("auto: episodes follow one another" if on else "the pilot starts each episode")
+
+    def discard_last(self, reason: str) -> None:
+        """Take the last finished episode out of training (an audit line; nothing deleted)."""
+        with self._lock:
+            if self._run.state in ("starting", "running", "stopping"):
+                raise ConfigError("an episode is flying; discard it after it ends (at the ready gate or after the run)")
+            last = self.records[-1] if self.records else None
+            dataset = self._dataset
+        if last is None:
+            raise ConfigError("no finished episode to discard")
+        if last.get("discarded"):
+            raise ConfigError(f"episode {last['episode']} was discarded already")
+        rows = self._discard(int(last["episode"]), reason, dataset)
+        with self._lock:
+            last["discarded"] = reason
+        self.publish({"type": "discarded", "episode": last["episode"], "rows": rows, "reason": reason})
+        self._announce(f"episode {last['episode']} discarded: {rows} samples out of training (kept in "
+                       "human.csv, listed in human.discarded.jsonl)")
+
+    def _discard(self, episode: int, reason: str, dataset: HumanDataset | None) -> int:
+        try:
+            if dataset is not None:
+                return dataset.discard_episode(episode, reason)
+            with HumanDataset(self.opts.run_dir / "human.csv") as stored:  # after a restart, between runs
+                return stored.discard_episode(episode, reason)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
 
     def pause(self, paused: bool) -> None:
         """Pause takes effect between episodes: the next one waits until resumed."""
@@ -134,11 +232,15 @@ class ConsoleSession:
 
     def next_episode(self) -> None:
         with self._lock:
+            if self._run.state != "running":
+                raise ConfigError("no episode is flying")
             self._next = True
         self._announce("ending this episode")
 
     def stop(self) -> None:
         with self._lock:
+            if self._run.state not in RUNNING_STATES:
+                raise ConfigError("no run to stop")
             self._stop = True
             self._resume.notify_all()
             if self._run.state in ("starting", "running", "paused"):
@@ -151,7 +253,9 @@ class ConsoleSession:
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Stop any run and wait for it (its SITL stops with it)."""
-        self.stop()
+        with self._lock:
+            self._stop = True
+            self._resume.notify_all()
         thread = self._thread
         if thread is not None:
             thread.join(timeout_s)
@@ -167,6 +271,7 @@ class ConsoleSession:
         with self._lock:
             self._vehicle, self._learner, self._dataset = vehicle, learner, dataset
             self._run.state = "stopping" if self._stop else "running"
+            self._run.stage = "connected: the episode's start (reset, take-off) takes a few seconds"
         if vehicle.camera is not None:
             self._pump = FramePump(vehicle.camera, self._on_frame)
             self._pump.start()
@@ -179,11 +284,17 @@ class ConsoleSession:
                 self._run.state = "paused"
                 self._publish_status_locked()
             self._resume.wait_for(lambda: self._stop or not self._paused)
+            if not (self._stop or self._go or self._run.auto):
+                self._run.state, self._run.ready_for, self._run.phase = "ready", episode, phase.value
+                self._publish_status_locked()
+            self._resume.wait_for(lambda: self._stop or self._go or self._run.auto)
             if self._stop:
                 return False
             self._run.state, self._run.episode, self._run.phase = "running", episode, phase.value
+            self._run.ready_for, self._go = None, False
             self._run.track_ne = []
             self._next = False
+            self._watch = _EpisodeWatch()
         self.human.reset()
         if self._recorder is not None:
             self._recorder.before_episode(episode, phase)
@@ -191,14 +302,27 @@ class ConsoleSession:
 
     def on_step(self, view: StepView) -> None:
         learner, dataset = self._learner, self._dataset
+        self._notice_step(view)
         message = step_message(view, learner.last_loss if learner is not None else None,
-                               len(dataset) if dataset is not None else 0)
+                               len(dataset) if dataset is not None else 0, self.hud, self._watch)
         if self._recorder is not None:
             self._recorder.on_step(view)
         with self._lock:
             self._run.track_ne.append([*message["position_ne_m"], message["who"]])
             self._run.last_step = message
+            self._run.stage = None
         self.publish(message)
+
+    def _notice_step(self, view: StepView) -> None:
+        """Count the person's recorded steps and stick movement; remember the pad's size."""
+        w = self._watch
+        if view.decision.record:
+            w.recorded += 1
+            if max(abs(x) for x in view.decision.command.to_array()) > self.cfg.commands.deadband:
+                w.moved += 1
+        pad, height = view.observation.pad, self.hud.pad_down_m - view.observation.position_ned_m[2]
+        if pad is not None and not pad.partial and height > 0.05:
+            w.pad_k_px_m = pad.radius_px * height
 
     def end_requested(self) -> str | None:
         with self._lock:
@@ -228,32 +352,71 @@ class ConsoleSession:
             if self._pump is not None:
                 self._pump.stop()
                 self._pump = None
+            if self._rtp is not None:
+                self._rtp.close()
+                self._rtp = None
             with self._lock:
                 self._run.state, self._run.error = state, error
+                self._run.ready_for = self._run.stage = None
+                self._run.summary = self._summary_locked(state, error)
                 self._vehicle = None
                 self._publish_status_locked()
-        self._announce(f"run {state}" + (f": {error}" if error else ""))
+        self._announce(self._run.summary or f"run {state}")
+
+    def _summary_locked(self, state: str, error: str | None) -> str:
+        """The message at the end of a run: what was flown and what landed."""
+        started = self._run.started_wall_s or 0.0
+        mine = [r for r in self.records if r.get("console_run_s") == started]
+        landed = sum(1 for r in mine if r.get("success"))
+        text = f"run {state}: {len(mine)} of {self._run.episodes} episodes flown, {landed} landed on the pad"
+        return text + (f"; {error}" if error else "")
 
     def _write_pictures(self, result: RunResult, condition: str) -> None:
         if self._recorder is None or not result.records:
             return
+        first, last = result.records[0].episode, result.records[-1].episode
         for path in write_pictures(self._recorder, result, self.cfg, f"console {condition}"):
+            if path.name == "flight.png":  # one picture per run, not overwritten by the next
+                path = path.replace(path.with_name(f"flight_{first:03d}-{last:03d}.png"))
             self._announce(f"wrote {path}")
 
     def _on_frame(self, frame: Frame, message: bytes) -> None:
         self.publish_frame(message)
+        if self.opts.rtp:
+            self._send_rtp(frame)
+
+    def _send_rtp(self, frame: Frame) -> None:
+        """The camera to a ground station too (``--rtp``); its encoder runs on its own thread."""
+        if self._rtp is None:
+            from sitl.rtp import RtpVideoSender
+
+            height, width = frame.image.shape[:2]
+            self._rtp = RtpVideoSender(self.opts.rtp, width, height, self.opts.camera_rate_hz)
+            self._announce(f"sending the camera as H.264 over RTP to {self.opts.rtp}")
+        if self._rtp.error is None:
+            self._rtp.publish(frame.image)
 
     def _on_episode(self, record: EpisodeRecord) -> None:
         with self._lock:
-            last = self._run.last_step
+            last, w = self._run.last_step, self._watch
             touchdown = last["position_ne_m"] if (record.outcome == "touchdown" and last is not None) else None
-            entry = {"episode": record.episode, "phase": record.phase, "outcome": record.outcome,
-                     "success": record.success, "steps": record.steps, "human_samples": record.human_samples,
-                     "interventions": record.interventions, "touchdown_distance_m": record.touchdown_distance_m,
-                     "touchdown_ne_m": touchdown, "dataset_size": record.dataset_size,
-                     "policy_version": record.policy_version, "loss_all": record.loss_all}
+            notes = {"episode": record.episode, "touchdown_ne_m": touchdown,
+                     "no_stick_input": record.phase == Phase.DEMONSTRATION.value and w.moved == 0}
+            entry = {**entry_of(record.to_json_dict()), **notes, "discarded": None,
+                     "console_run_s": self._run.started_wall_s}
             self.records.append(entry)
+        self._write_notes(notes)
         self.publish({"type": "episode", **entry})
+        if notes["no_stick_input"]:
+            self._announce(f"episode {record.episode} was a demonstration with no stick input "
+                           f"({w.recorded} samples of centred sticks): discard it if nobody was flying")
+
+    def _write_notes(self, notes: dict[str, Any]) -> None:
+        try:
+            with (self.opts.run_dir / NOTES_FILE).open("a") as f:
+                f.write(json.dumps(notes) + "\n")
+        except OSError as exc:  # the dataset and episodes.jsonl are safe; the notes are a courtesy
+            log.warning("could not write the console's notes: %s", exc)
 
     # ----- what the page is told ---------------------------------------------------------------
     def _announce(self, text: str) -> None:
@@ -267,10 +430,12 @@ class ConsoleSession:
         run, inp = self._run, self.human.status()
         learner, dataset = self._learner, self._dataset
         simulator = self._vehicle.simulator if self._vehicle is not None else None
+        since = None if run.started_wall_s is None else round(time.time() - run.started_wall_s, 1)
         return {
             "type": "status", "run": {"state": run.state, "condition": run.condition, "episodes": run.episodes,
                                       "error": run.error, "episode": run.episode, "phase": run.phase,
-                                      "paused": self._paused},
+                                      "paused": self._paused, "auto": run.auto, "ready_for": run.ready_for,
+                                      "stage": run.stage, "since_start_s": since, "summary": run.summary},
             "input": {"connected": inp.connected, "fresh": inp.fresh, "holding": inp.holding,
                       "hold_reason": inp.hold_reason, "messages": inp.messages, "override": inp.command.override_held},
             "learner": {"version": learner.latest_snapshot.version if learner is not None else None,
@@ -300,6 +465,7 @@ class ConsoleSession:
             "input_timeout_s": c.pilot.manual_timeout_s,
             "pad_ned_m": list(c.session.pad_ned_m), "pad_radius_m": c.pilot.pad_radius_m,
             "fence_radius_m": c.safety.fence_radius_m, "episodes_default": c.session.episodes,
+            "max_steps": c.session.max_steps,
             "track": track, "track_episode": episode, "records": records, "status": self.status(),
         }
 
@@ -312,3 +478,43 @@ class ConsoleSession:
             return vehicle.simulator.truth()
         except ColError:
             return None
+
+
+RECORD_KEYS = ("episode", "phase", "outcome", "success", "steps", "human_samples", "interventions",
+               "touchdown_distance_m", "dataset_size", "policy_version", "loss_all")
+
+
+def entry_of(record: dict[str, Any]) -> dict[str, Any]:
+    """The table's columns of one ``episodes.jsonl`` record."""
+    return {k: record.get(k) for k in RECORD_KEYS}
+
+
+def _json_lines(path: Path) -> list[dict[str, Any]]:
+    """A JSON-lines file's objects; unreadable lines (a torn last one) are logged and skipped."""
+    if not path.is_file():
+        return []
+    out = []
+    for i, line in enumerate(path.read_text().splitlines(), start=1):
+        try:
+            value = json.loads(line)
+        except ValueError:
+            log.warning("%s: line %d unreadable, skipped", path, i)
+            continue
+        if isinstance(value, dict) and isinstance(value.get("episode"), int):
+            out.append(value)
+    return out
+
+
+def load_history(run_dir: Path) -> list[dict[str, Any]]:
+    """The run folder's finished episodes for the table and plot: ``episodes.jsonl``, the
+    console's notes and which episodes were discarded (a console restarted on the folder)."""
+    notes = {n["episode"]: n for n in _json_lines(run_dir / NOTES_FILE)}
+    audit = {int(a["episode"]): str(a.get("reason") or "discarded")
+             for a in _json_lines(run_dir / "human.discarded.jsonl")}
+    history = []
+    for record in _json_lines(run_dir / "episodes.jsonl"):
+        note = notes.get(record["episode"], {})
+        history.append({**entry_of(record), "touchdown_ne_m": note.get("touchdown_ne_m"),
+                        "no_stick_input": bool(note.get("no_stick_input")),
+                        "discarded": audit.get(record["episode"])})
+    return history

@@ -1,5 +1,6 @@
-"""Who may use the console: another site's page is refused at the socket, a token guards a
-console that other machines can reach, and wider binding must be asked for."""
+"""Who may use the console: another site's page is refused at the socket, a page reached by a
+rebound name is refused everywhere, a token guards a console that other machines can reach,
+and wider binding must be asked for."""
 
 from __future__ import annotations
 
@@ -11,7 +12,15 @@ import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
 from companion.config import CompanionConfig
-from companion.console.access import check_console_exposure, origin_ok, token_ok
+from companion.console.access import (
+    LOOPBACK_NAMES,
+    allowed_hosts,
+    check_console_exposure,
+    host_ok,
+    origin_ok,
+    page_url,
+    token_ok,
+)
 from companion.console.server import ConsoleServer
 from companion.console.session import ConsoleOptions, ConsoleSession
 from companion.errors import ConfigError
@@ -79,5 +88,36 @@ def test_a_token_guards_the_page_and_the_socket_not_the_static_files(tmp_path: P
             ws = await client.ws_connect(f"/ws?token={TOKEN}")
             assert (await asyncio.wait_for(ws.receive_json(), 5.0))["type"] == "hello"
             await ws.close()
+
+    asyncio.run(scenario())
+
+
+def test_only_the_consoles_own_names_are_answered() -> None:
+    assert host_ok("127.0.0.1:8765", LOOPBACK_NAMES) and host_ok("LOCALHOST:8765", LOOPBACK_NAMES)
+    assert host_ok("[::1]:8765", LOOPBACK_NAMES) and host_ok("127.0.0.2:8765", LOOPBACK_NAMES)
+    for rebound in ("evil.example:8765", "attacker.example", "localhost.evil.example:8765", "127.0.0.1.nip.io:8765"):
+        assert not host_ok(rebound, LOOPBACK_NAMES), rebound
+    assert not host_ok(None, LOOPBACK_NAMES) and not host_ok("[::1:8765", LOOPBACK_NAMES)
+    assert not host_ok("127.0.0.1:http", LOOPBACK_NAMES)
+    remote = allowed_hosts("0.0.0.0", True, ("drone-gcs.lan",))
+    assert host_ok("drone-gcs.lan:8765", remote) and not host_ok("evil.example:8765", remote)
+    assert allowed_hosts("192.168.1.20", False) == LOOPBACK_NAMES  # without --allow-remote: loopback only
+    assert "192.168.1.20" in allowed_hosts("192.168.1.20", True)
+    assert page_url("0.0.0.0", 8765, remote) == "http://drone-gcs.lan:8765/"  # not http://0.0.0.0:...
+    assert page_url("127.0.0.1", 8765, LOOPBACK_NAMES) == "http://127.0.0.1:8765/"
+
+
+def test_a_rebinding_host_is_refused_even_with_a_matching_origin(tmp_path: Path) -> None:
+    async def scenario() -> None:
+        server = _server(tmp_path)
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            evil = f"evil.example:{ts.port}"
+            assert (await client.get("/", headers={"Host": evil})).status == 403
+            assert (await client.get("/static/console.js", headers={"Host": evil})).status == 403
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await client.ws_connect("/ws", headers={"Host": evil, "Origin": f"http://{evil}"})
+            assert refused.value.status == 403
+            assert not server.clients and server.session.human.status().messages == 0
+            assert (await client.get("/", headers={"Host": f"localhost:{ts.port}"})).status == 200
 
     asyncio.run(scenario())

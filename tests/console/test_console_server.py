@@ -1,11 +1,14 @@
 """The console's server without a vehicle: the page and its files, the WebSocket's messages,
-refused requests, and which page is the pilot."""
+refused requests (each logged, none closing the socket), and the one pilot role."""
 
 from __future__ import annotations
 
 import asyncio
+import logging
 from pathlib import Path
 
+import pytest
+from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient, TestServer
 
 from companion.config import CompanionConfig
@@ -13,6 +16,7 @@ from companion.console.server import ConsoleServer
 from companion.console.session import ConsoleOptions, ConsoleSession
 
 INPUT = {"type": "input", "axes": [0, 0, 0, -0.5], "buttons": [0] * 7 + [1], "seq": 0, "t": 0}
+PILOT = {"type": "role", "want": "pilot"}
 
 
 def make_server(tmp_path: Path) -> ConsoleServer:
@@ -20,7 +24,7 @@ def make_server(tmp_path: Path) -> ConsoleServer:
     return ConsoleServer(lambda publish, frame: ConsoleSession(cfg, ConsoleOptions(run_dir=tmp_path / "run"), publish, frame))
 
 
-async def _until(test, timeout_s: float = 3.0) -> bool:  # type: ignore[no-untyped-def]
+async def _until(test, timeout_s: float = 10.0) -> bool:  # type: ignore[no-untyped-def]
     for _ in range(int(timeout_s / 0.01)):
         if test():
             return True
@@ -28,30 +32,48 @@ async def _until(test, timeout_s: float = 3.0) -> bool:  # type: ignore[no-untyp
     return bool(test())
 
 
-async def _next_of(ws, kind: str) -> dict:  # type: ignore[no-untyped-def]
-    while True:
-        message = await asyncio.wait_for(ws.receive_json(), 5.0)
-        if message["type"] == kind:
-            return message
+async def _next_of(ws, kind: str, timeout_s: float = 20.0) -> dict:  # type: ignore[no-untyped-def]
+    async def find() -> dict:
+        while True:
+            message = await ws.receive_json()
+            if message["type"] == kind:
+                return message
+
+    return await asyncio.wait_for(find(), timeout_s)
+
+
+async def _files(client: TestClient) -> None:
+    page = await client.get("/")
+    assert page.status == 200 and "pilot console" in await page.text()
+    for name in ("console.js", "console.css", "index.html"):
+        assert (await client.get(f"/static/{name}")).status == 200
+    assert (await client.get("/static/secret.py")).status == 404
 
 
 async def _scenario(tmp_path: Path) -> None:
     server = make_server(tmp_path)
     human = server.session.human
     async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
-        page = await client.get("/")
-        assert page.status == 200 and "pilot console" in await page.text()
-        for name in ("console.js", "console.css", "index.html"):
-            assert (await client.get(f"/static/{name}")).status == 200
-        assert (await client.get("/static/secret.py")).status == 404
-
+        await _files(client)
         first = await client.ws_connect("/ws")
         hello = await _next_of(first, "hello")
         assert hello["conditions"] == ["demo", "int", "col"] and hello["control_rate_hz"] == 10.5
         assert hello["status"]["run"]["state"] == "idle" and hello["records"] == []
+        assert hello["role"]["role"] == "watch" and hello["role"]["pilot_page"] is None
 
+        await first.send_json(INPUT)  # a watcher's sticks are refused, not dropped silently
+        assert "watches" in (await _next_of(first, "error"))["message"]
+        await first.send_json({"type": "command", "name": "start", "condition": "col", "episodes": 1})
+        assert "only the pilot" in (await _next_of(first, "error"))["message"]
+        assert human.status().messages == 0 and not server.session.running
+
+        await first.send_json(PILOT)
+        role = await _next_of(first, "role")
+        assert role["role"] == "pilot" and role["pilot_page"] == role["page"]
         for bad, why in [({"type": "command", "name": "start", "condition": "eval", "episodes": 1}, "condition"),
                          ({"type": "command", "name": "start", "condition": "col", "episodes": 0}, "episodes"),
+                         ({"type": "command", "name": "start", "condition": "col", "episodes": 2.5}, "whole number"),
+                         ({"type": "command", "name": "stop"}, "no run"),
                          ({"type": "command", "name": "fly"}, "unknown command"),
                          ({"type": "dance"}, "unknown message type"),
                          ({"type": "input", "axes": 1, "buttons": []}, "axes")]:
@@ -64,21 +86,64 @@ async def _scenario(tmp_path: Path) -> None:
         assert await _until(lambda: human.status().messages == 1)
         assert human.status().command.override_held
 
-        second = await client.ws_connect("/ws")  # the newest page is the pilot
-        await _next_of(second, "hello")
-        await first.send_json(INPUT)
+        second = await client.ws_connect("/ws")  # a second tab: it watches, the pilot stays
+        assert (await _next_of(second, "hello"))["role"]["role"] == "watch"
+        await second.send_json(PILOT)
+        assert "is the pilot" in (await _next_of(second, "error"))["message"]
         await second.send_json({**INPUT, "buttons": [0] * 8})
+        await first.send_json(INPUT)
         assert await _until(lambda: human.status().messages == 2)
-        await asyncio.sleep(0.1)
-        assert human.status().messages == 2 and not human.status().command.override_held
+        assert human.status().command.override_held  # the pilot's override is not dropped
 
-        await first.close()  # a watcher leaving changes nothing
-        await asyncio.sleep(0.1)
-        assert human.status().connected
-        await second.close()  # the pilot leaving silences the input at once
+        await second.close()  # a watcher leaving changes nothing
+        await first.send_json(INPUT)
+        assert await _until(lambda: human.status().messages == 3)
+        assert human.status().connected and server.pilot is not None
+
+        third = await client.ws_connect("/ws")
+        await _next_of(third, "hello")
+        await first.close()  # the pilot leaving: its input is silent at once, every page is told
         assert await _until(lambda: not human.status().connected)
         assert human.read().hold
+        notice = await _next_of(third, "notice")
+        assert notice.get("pilot_lost") and "holds position" in notice["text"]
+        assert (await _next_of(third, "role"))["pilot_page"] is None
+        await third.send_json(PILOT)  # now another page may take the role
+        assert (await _next_of(third, "role"))["role"] == "pilot"
+        await third.send_json({"type": "role", "want": "watch"})  # and give it up
+        assert (await _next_of(third, "role"))["role"] == "watch" and server.pilot is None
+        await third.close()
 
 
-def test_the_page_its_socket_and_the_pilot(tmp_path: Path) -> None:
+def test_the_page_its_socket_and_the_one_pilot(tmp_path: Path) -> None:
     asyncio.run(_scenario(tmp_path))
+
+
+@pytest.mark.parametrize("text,why", [("[" * 60_000, "at most"), ("[" * 5000, "nested too deeply"), ("{" * 5000, "not JSON"),
+                                      ("x" * 9000, "at most"), ('{"type": "input", "axes": [NaN], "buttons": []}', "outside"),
+                                      ('{"type": "input", "axes": [null, 0, 0, 0], "buttons": []}', "NaN or Infinity"),
+                                      ('{"type": "input", "axes": [1e308], "buttons": []}', "outside"),
+                                      ('{"type": "input", "axes": [0, 0, 0, 5], "buttons": []}', "outside"),
+                                      ('{"type": "input", "axes": [0], "buttons": [-Infinity]}', "outside"),
+                                      ('{"type": "input", "axes": [true], "buttons": []}', "not a number")])
+def test_malformed_messages_are_logged_refused_and_keep_the_socket(tmp_path: Path, text: str, why: str,
+                                                                  caplog: pytest.LogCaptureFixture) -> None:
+    async def scenario() -> None:
+        server = make_server(tmp_path)
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            ws = await client.ws_connect("/ws")
+            await ws.send_json(PILOT)
+            await _next_of(ws, "role")
+            await ws.send_str(text)
+            assert why in (await _next_of(ws, "error"))["message"]
+            await ws.send_bytes(b"\x00\x01")
+            assert "binary" in (await _next_of(ws, "error"))["message"]
+            await ws.send_json(INPUT)  # the socket lives on and good input still flies
+            assert await _until(lambda: server.session.human.status().messages == 1)
+            assert server.pilot is not None and not ws.closed
+            await ws.close()
+            assert ws.close_code != 1009 and (await ws.receive()).type in (WSMsgType.CLOSED, WSMsgType.CLOSE)
+
+    with caplog.at_level(logging.WARNING, logger="companion.console.server"):
+        asyncio.run(scenario())
+    assert any(why in r.getMessage() and "refused" in r.getMessage() for r in caplog.records)
