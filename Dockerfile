@@ -61,9 +61,15 @@ RUN --mount=type=secret,id=ca_bundle \
 
 # -- dev: everything, the way a developer's checkout is installed --------------------------------
 FROM base AS dev
+# make setup builds jsbsim from source on arm64 as the build stage does: the same compiler and headers
+ARG TARGETARCH
 RUN apt-get update \
     && apt-get install -y --no-install-recommends make libgl1 libglib2.0-0 \
     && (python3 -c "import ensurepip" 2>/dev/null || apt-get install -y --no-install-recommends python3-venv) \
+    && { [ "${TARGETARCH:-amd64}" = amd64 ] || apt-get install -y --no-install-recommends g++; } \
+    && { [ "${TARGETARCH:-amd64}" = amd64 ] \
+        || python3 -c "import os, sysconfig; raise SystemExit(not os.path.exists(os.path.join(sysconfig.get_path('include'), 'Python.h')))" \
+        || apt-get install -y --no-install-recommends python3-dev; } \
     && rm -rf /var/lib/apt/lists/*
 WORKDIR /app
 COPY pyproject.toml Makefile README.md ./

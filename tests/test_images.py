@@ -83,6 +83,9 @@ def test_arm64_builds_get_a_compiler_and_the_python_headers_jsbsim_needs(tmp_pat
 def test_the_dev_stage_installs_with_make_setup() -> None:
     dev = "\n".join(stages()["dev"])
     assert "make setup" in dev and "COPY tests ./tests" in dev
+    # make setup builds jsbsim from source on arm64 too: a compiler, and the headers where missing
+    assert '[ "${TARGETARCH:-amd64}" = amd64 ] || apt-get install -y --no-install-recommends g++' in dev
+    assert re.search(r"Python\.h'\)\)\)\"\s+\|\| apt-get install -y --no-install-recommends python3-dev", dev)
 
 
 def test_ca_certificates_reach_the_build_only_as_a_secret() -> None:
