@@ -97,6 +97,8 @@ def measure(url: str, edges: int, hold_ms: float, profile: Path) -> dict:
             page.add_init_script(FAKE_PAD)
             page.goto(url)
             page.wait_for_function("window.colConsole.hello !== null", timeout=20000)
+            page.click("#take-role")
+            page.wait_for_function("window.colConsole.role && window.colConsole.role.role === 'pilot'", timeout=10000)
             page.select_option("#condition", "int")
             page.fill("#episodes", "1")
             page.click("#start")

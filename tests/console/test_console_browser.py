@@ -37,6 +37,12 @@ navigator.getGamepads = () => [{
 """
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+SHOTS = os.environ.get("COL_CONSOLE_SHOTS")  # a folder: keep the screenshots (docs/images)
+
+
+def shot(page, tmp_path: Path, name: str) -> None:  # type: ignore[no-untyped-def]
+    """A screenshot of the page, into COL_CONSOLE_SHOTS when set (else the test's folder)."""
+    page.screenshot(path=str(Path(SHOTS) / name if SHOTS else tmp_path / name))
 
 
 def _browser_or_skip() -> None:
@@ -85,6 +91,8 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
             page.add_init_script(FAKE_PAD)
             page.goto(url)
             _wait(page, "window.colConsole.hello !== null", 20)
+            page.click("#take-role")  # this page asks to be the pilot and is told it is
+            _wait(page, "window.colConsole.role.role === 'pilot'", 10)
             assert "gamepad: Emulated Xbox pad" in page.inner_text("#pad-state")
 
             # as a person would: choose Int, one episode, press Start
@@ -125,7 +133,7 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
             _wait(page, "window.colConsole.records.length === 1", 10)
             seen = page.evaluate("window.colConsole.steps")
             record = page.evaluate("window.colConsole.records[0]")
-            page.screenshot(path=str(tmp_path / "console.png"))
+            shot(page, tmp_path, "console_finished.png")
         finally:
             context.close()
 
@@ -145,4 +153,4 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
         assert float(r["roll"]) == float(r["yaw"]) == float(r["throttle"]) == 0.0
     assert record["interventions"] == 1 and record["human_samples"] == len(rows)
     assert record["outcome"] in ("stopped", "touchdown", "timeout")
-    assert (run_dir / "flight.png").is_file() and (run_dir / "episode_000.mp4").is_file()
+    assert (run_dir / "flight_000-000.png").is_file() and (run_dir / "episode_000.mp4").is_file()

@@ -75,6 +75,7 @@ async def _scenario(url: str, run_dir: Path) -> None:  # noqa: C901 - one story,
     async with aiohttp.ClientSession() as http:
         page = Page(await http.ws_connect(url + "ws"))
         await page.until(lambda: page.hello is not None, 10)
+        await page.ws.send_str(json.dumps({"type": "role", "want": "pilot"}))
         await page.ws.send_str(json.dumps({"type": "command", "name": "start", "condition": "int", "episodes": 1}))
         await page.until(lambda: len(page.steps) >= 5 and page.status and page.status["simulator"], 90)
         host, port = page.status["simulator"].split(":")
@@ -96,6 +97,7 @@ async def _scenario(url: str, run_dir: Path) -> None:  # noqa: C901 - one story,
         assert moved < 0.3 and speed_ne(b) < 0.3, f"not holding: moved {moved:.2f} m in 1 s"
 
         back = Page(await http.ws_connect(url + "ws"))  # a page comes back, trigger released
+        await back.ws.send_str(json.dumps({"type": "role", "want": "pilot"}))
         await back.until(lambda: back.status is not None and back.steps, 10)
         assert "lost its link" in (back.status["input"]["hold_reason"] or "")
         await asyncio.sleep(1.0)

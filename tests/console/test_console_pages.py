@@ -1,0 +1,127 @@
+"""The console's page in Debian's chromium (Playwright) against the console's server in this
+process, with no vehicle: a page reached through a rebound name is refused, and the video says
+when frames stop arriving (stale) and when no run flies (idle)."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from aiohttp import web
+
+from companion.config import CompanionConfig
+from companion.console.frames import encode_for_page
+from companion.console.server import ConsoleServer
+from companion.console.session import ConsoleOptions, ConsoleSession
+from sitl.frames import Frame
+from tests.console.test_console_browser import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    _browser_or_skip,
+    _wait,
+    shot,
+)
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
+
+
+class Served:
+    """A ConsoleServer on a free loopback port, on its own thread and event loop."""
+
+    def __init__(self, server: ConsoleServer) -> None:
+        self.server, self.port = server, 0
+        self.loop = asyncio.new_event_loop()
+        self._ready, self._stop = threading.Event(), asyncio.Event()
+        self.thread = threading.Thread(target=self.loop.run_until_complete, args=(self._main(),), daemon=True)
+        self.thread.start()
+        assert self._ready.wait(30), "the console's server did not start"
+
+    async def _main(self) -> None:
+        runner = web.AppRunner(self.server.app, handle_signals=False)
+        await runner.setup()
+        site = web.TCPSite(runner, "127.0.0.1", 0)
+        await site.start()
+        self.port = int(runner.addresses[0][1])
+        self._ready.set()
+        await self._stop.wait()
+        await runner.cleanup()
+
+    def close(self) -> None:
+        self.loop.call_soon_threadsafe(self._stop.set)
+        self.thread.join(30)
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[Served]:
+    cfg = CompanionConfig()
+    s = Served(ConsoleServer(lambda publish, frame: ConsoleSession(cfg, ConsoleOptions(run_dir=tmp_path / "run"),
+                                                                   publish, frame)))
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+def _browser(pw, tmp_path: Path, extra: list[str] | None = None):  # type: ignore[no-untyped-def]
+    return pw.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True,
+                                                 args=CHROMIUM_ARGS + (extra or []), viewport={"width": 1280, "height": 900})
+
+
+def test_a_page_reached_through_a_rebound_name_is_refused(served: Served, tmp_path: Path) -> None:
+    _browser_or_skip()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:  # attacker.example resolves to 127.0.0.1, as a rebinding DNS makes it
+        context = _browser(pw, tmp_path, ["--host-resolver-rules=MAP attacker.example 127.0.0.1"])
+        try:
+            page = context.new_page()
+            response = page.goto(f"http://attacker.example:{served.port}/")
+            assert response is not None and response.status == 403
+            assert "answers to its own names only" in page.inner_text("body")
+            opened = page.evaluate(f"""() => new Promise((done) => {{
+                const ws = new WebSocket("ws://attacker.example:{served.port}/ws");
+                ws.onopen = () => done("open"); ws.onerror = () => done("refused"); }})""")
+            assert opened == "refused" and not served.server.clients
+            own = context.new_page()
+            own.goto(f"http://127.0.0.1:{served.port}/")
+            _wait(own, "window.colConsole.hello !== null", 20)
+        finally:
+            context.close()
+
+
+def _frame(n: int) -> bytes:
+    image = np.full((240, 320, 3), 90, np.uint8)
+    image[100:140, 140 + n % 20: 180 + n % 20] = 230
+    return encode_for_page(Frame(n, 1000 + 28 * n, image))
+
+
+def test_the_video_says_when_frames_stop_and_when_no_run_flies(served: Served, tmp_path: Path) -> None:
+    _browser_or_skip()
+    from playwright.sync_api import sync_playwright
+
+    session = served.server.session
+    with sync_playwright() as pw:
+        context = _browser(pw, tmp_path)
+        try:
+            page = context.new_page()
+            page.goto(f"http://127.0.0.1:{served.port}/")
+            _wait(page, "window.colConsole.hello !== null", 20)
+            assert page.evaluate("window.colConsole.videoState") == "no-video"
+            session._run.state = "running"  # a run as the page sees it (status 4 times a second)
+            _wait(page, "window.colConsole.status.run.state === 'running'", 20)
+            for n in range(3):
+                served.server.publish_frame(_frame(n))
+            _wait(page, "window.colConsole.framesDrawn === 3", 20)
+            page.evaluate("window.colConsole.clockOffsetMs = 0")  # frames now stop arriving
+            _wait(page, "window.colConsole.videoState === 'stale'", 30)
+            shot(page, tmp_path, "console_stale.png")
+            served.server.publish_frame(_frame(3))
+            _wait(page, "window.colConsole.videoState === 'live'", 20)
+            session._run.state = "finished"
+            _wait(page, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 20)
+        finally:
+            context.close()
