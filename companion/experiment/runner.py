@@ -156,6 +156,10 @@ def run_grid(setup: ExperimentSetup, out_dir: Path, workers: int, progress: bool
     """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if backend not in ("process", "ray"):  # refused before anything is written into out_dir
+        raise ConfigError(f"unknown backend {backend!r}; use 'process' or 'ray'")
+    if backend == "process" and address is not None:
+        raise ConfigError("--address is for --backend ray")
     out_dir = out_dir.resolve()  # Ray workers may run in another working directory
     out_dir.mkdir(parents=True, exist_ok=True)
     results = ResultsFile(out_dir / "results.jsonl")

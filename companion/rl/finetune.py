@@ -45,6 +45,7 @@ from companion.rl.ppo import (
     refuse_other_settings,
     train,
 )
+from companion.rl.run_config import record_run_config, task_summary
 from companion.rl.vec_env import make_vec_env
 
 ENV_FROM_POLICY = (1, 0, 3, 2)
@@ -222,6 +223,7 @@ def run_finetune(checkpoint: Path, settings: FinetuneSettings, out_dir: Path, cf
         raise ConfigError(f"no human dataset at {data_path} for the behaviour-cloning term; pass --dataset "
                           "or --bc-weight 0")
     obs, actions = human_dataset(data_path) if settings.bc_weight > 0 else (np.zeros((0, 15)), np.zeros((0, 4)))
+    task = task_summary(record_run_config(out_dir, cfg, config_path))
     if not recorded:  # the inputs are good: the folder now belongs to this run
         (out_dir / "settings.json").write_text(json.dumps(_settings_of(settings, checkpoint, data_path)) + "\n")
     torch.set_num_threads(cfg.learner.torch_threads)
@@ -249,7 +251,7 @@ def run_finetune(checkpoint: Path, settings: FinetuneSettings, out_dir: Path, cf
                "dataset_size": len(obs), "before": before,
                "train": {"episodes": len(episodes), "steps": sum(int(r["steps"]) for r in episodes),
                          "successes": sum(bool(r["success"]) for r in episodes), "wall_s": round(train_s, 1)},
-               "after": after, "finetuned": str(out_dir / "finetuned.npz")}
+               "after": after, "finetuned": str(out_dir / "finetuned.npz"), "task": task}
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     return results
 

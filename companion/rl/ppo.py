@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from companion.config import CompanionConfig
 from companion.errors import ConfigError
 from companion.rl.gym_env import LandingEnv
+from companion.rl.run_config import record_run_config, task_summary
 from companion.rl.vec_env import make_vec_env
 from companion.statistics import wilson_interval
 
@@ -235,6 +236,7 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
     _check_same_settings(out_dir, settings)
     if (out_dir / "results.json").exists():
         return dict(json.loads((out_dir / "results.json").read_text()))
+    task = task_summary(record_run_config(out_dir, cfg, config_path))
     torch.set_num_threads(cfg.learner.torch_threads)
     venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess,
                         workers=workers)
@@ -253,7 +255,7 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
         eval_s = time.monotonic() - wall1
     finally:
         eval_env.close()
-    results = _results(settings, episodes, report, train_s, eval_s, out_dir)
+    results = {**_results(settings, episodes, report, train_s, eval_s, out_dir), "task": task}
     (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     return results
 

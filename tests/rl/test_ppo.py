@@ -54,6 +54,8 @@ def test_a_tiny_training_run_writes_an_evaluable_model(tmp_path: Path) -> None:
     assert all(r["outcome"] in ("touchdown", "fence", "timeout") for r in lines)
     assert results["eval"]["episodes"] == 2 and results["eval"]["seed0"] == EVAL_SEED
     assert json.loads((tmp_path / "results.json").read_text()) == results
+    assert results["task"] == {"config_path": None, "disturbance_level": 0.0}  # the task it trained on
+    assert json.loads((tmp_path / "run_config.json").read_text())["sitl"]["disturbance"]["level"] == 0.0
     model = PPO.load(tmp_path / "model.zip", device="cpu")
     action, _ = model.predict(np.zeros(15, dtype=np.float32), deterministic=True)
     assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
