@@ -210,7 +210,7 @@ def camera_bridge_cmd(
 @app.command("export")
 def export_cmd(
     checkpoint: Annotated[Path, typer.Argument(help="a checkpoint written by col fly / col demo")],
-    format: Annotated[str, typer.Option("--format", help="onnx (ONNX Runtime, TensorRT; needs the onnx extra) or npz (the checkpoint format, read by col fly and numpy.load)")] = "onnx",
+    format: Annotated[str, typer.Option("--format", help="onnx (checked with ONNX Runtime; TensorRT untested; needs the onnx extra) or npz (the checkpoint format, read by col fly and numpy.load)")] = "onnx",
     opset: Annotated[int, typer.Option("--opset", help="ONNX opset (13 or newer)")] = 17,
     out: Annotated[Path | None, typer.Option("--out", help="file to write (default: beside the checkpoint, .onnx or .export.npz)")] = None,
 ) -> None:
