@@ -502,7 +502,7 @@ def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionCo
     pad = cfg.session.pad_ned_m
     try:  # matplotlib, or OpenCV in the lean install
         written.append(plot_flight(recorder.tracks, outcomes, (pad[0], pad[1]), cfg.pilot.pad_radius_m,
-                                   result.run_dir / "flight.png", f"{label}: {len(recorder.tracks)} episodes from above"))
+                                   result.run_dir / "flight.png", f"{label}: {len(recorder.tracks)} episode{'' if len(recorder.tracks) == 1 else 's'} from above"))
     except Exception as exc:  # pictures are a courtesy: the run's data is already safe
         log.warning("could not write flight.png: %r", exc)
     if not recorder.frames:

@@ -116,6 +116,7 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
                 _wait(page, "window.colConsole.lastStep.who === 'person'", 10)
                 time.sleep(3.0)
                 after = sim.truth()
+                shot(page, tmp_path, "console_intervening.png")
                 page.evaluate("window.__pad.axes[3] = 0; window.__pad.buttons[7] = 0")
                 _wait(page, "window.colConsole.lastStep.who === 'policy'", 10)
             finally:

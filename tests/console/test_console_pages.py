@@ -113,9 +113,9 @@ def test_the_video_says_when_frames_stop_and_when_no_run_flies(served: Served, t
             assert page.evaluate("window.colConsole.videoState") == "no-video"
             session._run.state = "running"  # a run as the page sees it (status 4 times a second)
             _wait(page, "window.colConsole.status.run.state === 'running'", 20)
-            for n in range(3):
+            for n in range(3):  # one at a time: a page is sent only the newest frame waiting for it
                 served.server.publish_frame(_frame(n))
-            _wait(page, "window.colConsole.framesDrawn === 3", 20)
+                _wait(page, f"window.colConsole.framesDrawn === {n + 1}", 20)
             page.evaluate("window.colConsole.clockOffsetMs = 0")  # frames now stop arriving
             _wait(page, "window.colConsole.videoState === 'stale'", 30)
             shot(page, tmp_path, "console_stale.png")
