@@ -42,7 +42,7 @@ SHOTS = os.environ.get("COL_CONSOLE_SHOTS")  # a folder: keep the screenshots (d
 
 def shot(page, tmp_path: Path, name: str) -> None:  # type: ignore[no-untyped-def]
     """A screenshot of the page, into COL_CONSOLE_SHOTS when set (else the test's folder)."""
-    page.screenshot(path=str(Path(SHOTS) / name if SHOTS else tmp_path / name))
+    page.screenshot(path=str(Path(SHOTS) / name if SHOTS else tmp_path / name), full_page=True)
 
 
 def _browser_or_skip() -> None:

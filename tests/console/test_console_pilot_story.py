@@ -34,7 +34,7 @@ PITCH = 0.3  # the good stick before the pad breaks: every recorded row must car
 def _console(run_dir: Path, log: Path) -> tuple[subprocess.Popen[bytes], str]:
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
     proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir),
-                             "--no-pictures"], stdout=subprocess.PIPE, stderr=log.open("ab"), env=env, cwd=REPO)
+                             "--no-pictures", "-v"], stdout=subprocess.PIPE, stderr=log.open("ab"), env=env, cwd=REPO)
     assert proc.stdout is not None
     line = proc.stdout.readline().decode()
     assert line.startswith("CONSOLE http://127.0.0.1:"), log.read_text()
@@ -63,12 +63,12 @@ def _two_tabs_and_a_broken_pad(context, url: str, tmp_path: Path):  # type: igno
     b = _open(context, url)  # a second tab on the same URL
     assert b.evaluate("window.colConsole.role.role") == "watch"
     assert "is the pilot" in b.inner_text("#banner") and b.is_disabled("#stop") and b.is_disabled("#start")
+    shot(b, tmp_path, "console_watching.png")
     b.evaluate("window.colConsole.role.role = 'pilot'; document.getElementById('stop').disabled = false")
     b.click("#stop")  # even a page that thinks it may: refused by the server, and told
     _wait(b, "window.colConsole.errors.some((e) => e.text.includes('only the pilot'))", 10)
     assert a.evaluate("window.colConsole.role.role") == "pilot"
     assert a.evaluate("window.colConsole.status.run.state") == "running"
-    shot(b, tmp_path, "console_watching.png")
     b.close()
 
     a.evaluate("window.__pad.axes[0] = NaN; window.__pad.axes[1] = 1e308; window.__pad.axes[2] = -Infinity;"
@@ -85,7 +85,7 @@ def _the_flagged_demonstration(a) -> dict:  # type: ignore[no-untyped-def]
     _wait(a, "window.colConsole.status.run.state === 'ready' && window.colConsole.records.length === 1", 60)
     a.click("#go")  # nobody touches the sticks in episode 1
     _wait(a, "window.colConsole.status.run.state === 'running' && window.colConsole.lastStep.episode === 1"
-             " && window.colConsole.lastStep.step >= 15", 60)
+             " && window.colConsole.lastStep.step >= 15", 120)
     a.click("#next")
     _wait(a, "window.colConsole.records.length === 2 && window.colConsole.status.run.state === 'finished'", 60)
     record = a.evaluate("window.colConsole.records[1]")

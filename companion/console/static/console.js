@@ -300,7 +300,7 @@ function drawPlot() {
   };
   series(rate, 1, "#66bb6a"); series(samples, maxS, "#ffca28");
   g.fillStyle = "#aab"; g.font = "11px sans-serif";
-  g.fillText(alone ? `policy alone ${aloneWins}/${alone} landed` : "policy alone: no Int episode without takeover yet", 6, 12);
+  g.fillText(alone ? `policy alone ${aloneWins}/${alone} landed` : "policy alone: none yet", 6, 12);
   g.fillText(`${samples[n - 1]} samples`, W - 80, 12);
 }
 
