@@ -8,7 +8,7 @@ const POLL_MS = 8;             // ... and at once when the sticks change (polled
 const KEY_STICK = 0.6;         // stick deflection of a held key
 const STALE_MS = 1000;         // no camera frame for this long while a run flies: "video stale"
 const STEP_STALE_MS = 1500;    // no control step for this long: the HUD stops saying who flies
-const FRAMES_KEPT = 24;        // recent frames by number, to draw each detection on its own frame
+const FRAMES_KEPT = 10;        // recent frames by number, to draw each detection on its own frame
 const ACTIVE = ["starting", "running", "ready", "paused", "stopping"];
 const COLOURS = { person: "#ff9800", policy: "#29b6f6", hold: "#e53935" };
 
