@@ -110,7 +110,7 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
                 a = _two_tabs_and_a_broken_pad(context, url, tmp_path)
                 seen = a.evaluate("window.colConsole.steps")
                 record = _the_flagged_demonstration(a)
-                assert a.evaluate("window.colConsole.videoState") == "idle"
+                _wait(a, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 10)
                 shot(a, tmp_path, "console_discarded.png")
             finally:
                 context.close()
@@ -147,7 +147,7 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
                 records = page.evaluate("window.colConsole.records")
                 assert [r["episode"] for r in records] == [0, 1] and records[1]["discarded"]
                 assert "discarded" in page.inner_text("#episodes-table")
-                assert page.evaluate("window.colConsole.videoState") == "no-video"
+                _wait(page, "window.colConsole.videoState === 'no-video'", 10)
                 shot(page, tmp_path, "console_history.png")
             finally:
                 context.close()

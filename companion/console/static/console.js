@@ -91,7 +91,7 @@ function onStatus(s) {
   if (s.input.hold_reason) {
     showBanner(`HOLDING POSITION: ${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
   } else if (C.connected && isPilot()) { hideBanner(); }
-  updateControls(); drawMap();
+  updateControls(); drawMap(); drawVideo();  // a run's end shows at once, not at the next frame
 }
 
 function updateControls() {
