@@ -34,7 +34,7 @@ from torch import nn
 from companion.config import CompanionConfig, LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
-from companion.learning.dataset import load_csv
+from companion.learning.dataset import discarded_episodes, load_csv
 from companion.learning.policy import PolicyNet, PolicySnapshot
 from companion.rl.gym_env import LandingEnv
 from companion.rl.ppo import (
@@ -186,9 +186,12 @@ class BehaviourCloning:
 
 
 def human_dataset(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The person's observations and actions, the actions in the env's axis order."""
+    """The person's observations and actions, the actions in the env's axis order; episodes the
+    pilot discarded (the dataset's audit file) are left out, as the learner leaves them out."""
     rows = load_csv(path)
-    return rows.obs.astype(np.float32), rows.actions[:, list(ENV_FROM_POLICY)].astype(np.float32)
+    keep = ~np.isin(rows.episode, sorted(discarded_episodes(path)))
+    return (rows.obs[keep].astype(np.float32),
+            rows.actions[keep][:, list(ENV_FROM_POLICY)].astype(np.float32))
 
 
 def make_finetune_model(env: LandingEnv | VecEnv, snapshot: PolicySnapshot, settings: FinetuneSettings) -> PPO:

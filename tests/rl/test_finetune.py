@@ -166,3 +166,15 @@ def test_before_and_after_are_what_col_eval_measures(tmp_path: Path) -> None:
     assert {r["outcome"] for r in in_env} == {"touchdown"} and any(r["success"] for r in in_env)
     for a, b in zip(over_mavlink, in_env, strict=True):
         assert abs(a["touchdown_distance_m"] - b["touchdown_distance_m"]) < 1e-3
+
+
+def test_a_discarded_episode_is_not_cloned(tmp_path: Path, rng: np.random.Generator) -> None:
+    """The pilot discarded episode 1 in the console: its rows stay in human.csv, but the
+    behaviour-cloning term, like the learner, leaves them out."""
+    make_run(tmp_path, rng)  # episode 0: 40 samples
+    with HumanDataset(tmp_path / "human.csv") as data:
+        for k in range(7):
+            data.append(Sample(1, k, 0.1 * k, Source.DEMONSTRATION, rng.normal(0, 2, 15), rng.uniform(-1, 1, 4)))
+        data.discard_episode(1, "nobody on the sticks")
+    obs, actions = human_dataset(tmp_path / "human.csv")
+    assert obs.shape == (40, 15) and actions.shape == (40, 4)
