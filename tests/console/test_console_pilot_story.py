@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -95,6 +96,12 @@ def _the_flagged_demonstration(a) -> dict:  # type: ignore[no-untyped-def]
     return record
 
 
+def _browser(pw: Any, profile: Path) -> Any:
+    """Headless chromium with its own profile folder (a fresh one per console start)."""
+    return pw.chromium.launch_persistent_context(str(profile), executable_path=CHROMIUM, headless=True,
+                                                 args=CHROMIUM_ARGS, viewport={"width": 1280, "height": 900})
+
+
 def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart(tmp_path: Path) -> None:
     _browser_or_skip()
     from playwright.sync_api import sync_playwright
@@ -103,9 +110,7 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
     proc, url = _console(run_dir, log)
     try:
         with sync_playwright() as pw:
-            context = pw.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=CHROMIUM,
-                                                            headless=True, args=CHROMIUM_ARGS,
-                                                            viewport={"width": 1280, "height": 900})
+            context = _browser(pw, tmp_path / "profile")
             try:
                 a = _two_tabs_and_a_broken_pad(context, url, tmp_path)
                 seen = a.evaluate("window.colConsole.steps")
@@ -139,9 +144,7 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
     proc, url = _console(run_dir, log)  # the console restarted on the same folder
     try:
         with sync_playwright() as pw:
-            context = pw.chromium.launch_persistent_context(str(tmp_path / "profile2"), executable_path=CHROMIUM,
-                                                            headless=True, args=CHROMIUM_ARGS,
-                                                            viewport={"width": 1280, "height": 900})
+            context = _browser(pw, tmp_path / "profile2")
             try:
                 page = _open(context, url)
                 records = page.evaluate("window.colConsole.records")
