@@ -33,10 +33,10 @@ setup-browser:
 # Two workers: most of the suite waits on real-time flights (real autopilots, real-time SITL),
 # so two at once take about 10 minutes where one took 16 on the 2-core machine.
 test: setup
-	$(PY) -m pytest -q -n 2
+	$(PY) -m pytest -q -n 2 --dist loadgroup
 
 test-all: setup
-	$(PY) -m pytest -q -n 2 -m ''
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m ''
 
 demo: setup
 	$(VENV)/bin/col demo

@@ -45,6 +45,7 @@ def _recorded_environ() -> dict[str, str] | None:
 @pytest.mark.skipif(not (_recorded_environ() and ne.can_run_environ(_recorded_environ() or {}, os.uname().machine,
                                                                     ne.cpu_flags())),
                     reason="this CPU cannot run the kernels the committed grid was made with")
+@pytest.mark.xdist_group("cpu-heavy")  # not beside the real-time autopilot tests
 def test_a_committed_trial_reruns_byte_for_byte() -> None:
     """``--verify`` reruns the trial in the environment the folder recorded, whatever the shell
     asks for (here OpenBLAS's SSE3 kernels, which neither the grid nor the profile uses)."""
