@@ -129,10 +129,9 @@ def ensure_pinned(argv: list[str], environ: MutableMapping[str, str] | None = No
     """
     env = os.environ if environ is None else environ
     reason = why_not_pinned(env, platform.machine(), cpu_flags())
-    if reason is not None or is_pinned(env):
-        return reason
-    os.execve(sys.executable, [sys.executable, *argv], pinned_environ(env))
-    return None  # pragma: no cover - execve does not return
+    if reason is None:
+        ensure_environ(argv, PINNED, env)  # returns only when already pinned
+    return reason
 
 
 AVX512_CORE_TYPES = frozenset({"SkylakeX", "Cooperlake", "SapphireRapids"})
