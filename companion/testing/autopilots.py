@@ -14,10 +14,12 @@ the start script's module commands run.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import signal
 import socket
 import subprocess
+import tempfile
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -111,24 +113,35 @@ def _tcp_free(port: int) -> bool:
     return True
 
 
-_CLAIMED: set[tuple[str, int]] = set()
+_CLAIMED: dict[tuple[str, int], int] = {}
 _CLAIM_LOCK = threading.Lock()
-"""Instances handed out in this process and not stopped yet: two started at once would both
-find the same ports free before either binds them (ArduCopter then fails: "bind failed on
-port 5762")."""
+"""Instances handed out and not stopped yet, each with the descriptor of its lock file. Two
+started at once would both find the same ports free before either binds them (ArduCopter then
+fails: "bind failed on port 5762"; PX4: "failed to set lock on file"), so a claim is an
+exclusive ``flock`` that other processes (test workers) see too; the kernel drops it if the
+holder dies."""
 
 
 def _claim(kind: str, instance: int) -> bool:
     with _CLAIM_LOCK:
         if (kind, instance) in _CLAIMED:
             return False
-        _CLAIMED.add((kind, instance))
+        path = Path(tempfile.gettempdir()) / f"col-autopilot-{kind}-{instance}.lock"
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            return False
+        _CLAIMED[(kind, instance)] = fd
         return True
 
 
 def _release(kind: str, instance: int) -> None:
     with _CLAIM_LOCK:
-        _CLAIMED.discard((kind, instance))
+        fd = _CLAIMED.pop((kind, instance), None)
+    if fd is not None:
+        os.close(fd)  # closing the descriptor drops the flock
 
 
 def free_px4_instance(first: int = 0, last: int = 9) -> int:

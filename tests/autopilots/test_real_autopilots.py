@@ -281,3 +281,24 @@ def test_instances_handed_out_at_once_never_share_ports() -> None:
             autopilots._release(kind, inst)
     assert autopilots.free_ardupilot_instance() == first  # released: handed out again
     autopilots._release("ardupilot", first)
+
+
+def test_an_instance_claimed_by_another_process_is_not_handed_out() -> None:
+    """Two test workers each starting PX4 instance 0 fought over its lock file and one port."""
+    from companion.testing import autopilots
+
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from companion.testing import autopilots as a;"
+         "print(a.free_px4_instance(), flush=True); sys.stdin.readline()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdin is not None
+        theirs = int(holder.stdout.readline())
+        ours = autopilots.free_px4_instance()
+        autopilots._release("px4", ours)
+        assert ours != theirs
+    finally:
+        holder.kill()
+        holder.wait(10)
+    assert autopilots.free_px4_instance() == theirs  # its holder died: the kernel dropped the lock
+    autopilots._release("px4", theirs)

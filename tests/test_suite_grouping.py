@@ -1,0 +1,43 @@
+"""`make test` runs two pytest-xdist workers and relies on ``--dist loadgroup`` to keep the
+real-time real-autopilot tests (one module fixture flying PX4 and ArduCopter) and the CPU-bound
+trial reruns on one worker. pytest 9.2 with xdist 3.8 silently dropped the groups (xdist renames
+``item._nodeid``, pytest 9.2 reads ``item._id``): both workers then started PX4 instance 0 and
+ArduCopter instance 0 at once. This checks the installed pair still honours a group."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("xdist")
+
+GROUPED = """
+import pytest
+pytestmark = pytest.mark.xdist_group("together")
+
+@pytest.mark.parametrize("k", range(4))
+def test_grouped(k):
+    pass
+"""
+LOOSE = """
+import pytest
+
+@pytest.mark.parametrize("k", range(4))
+def test_loose(k):
+    pass
+"""
+
+
+def test_tests_of_one_xdist_group_run_on_one_worker(tmp_path: Path) -> None:
+    (tmp_path / "test_grouped.py").write_text(GROUPED)
+    (tmp_path / "test_loose.py").write_text(LOOSE)
+    out = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-n", "2", "--dist", "loadgroup",
+                          "-v", "-o", "addopts=", str(tmp_path)],
+                         capture_output=True, text=True, timeout=240, cwd=tmp_path).stdout
+    workers = set(re.findall(r"\[(gw\d)\][^\n]*PASSED[^\n]*test_grouped", out))
+    assert len(re.findall(r"PASSED[^\n]*test_grouped", out)) == 4, out
+    assert len(workers) == 1, out
