@@ -12,12 +12,14 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.landing_target import LandingTargetRejected, TargetMeasurement
 from sitl.offboard import TargetFields
 from sitl.params import encode_value
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
 from sitl.vehicle import AUTOPILOT, CAMERA, FORCE_DISARM_MAGIC, Outgoing, SimVehicle
 
 M = mavlink
+NAV_PRECLAND = 23  # PX4's VEHICLE_CMD_NAV_PRECLAND (MAVLink's number of MAV_CMD_NAV_LAND_LOCAL)
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,18 @@ class MessageHandler:
         if m.target in (0, self.sysid):
             self.v.manual_control(float(m.x), float(m.y), float(m.z), float(m.r))
         return HandleResult([], lockstep_answer_ms=-1)
+
+    def _on_landing_target(self, m: mavlink.MAVLink_message) -> HandleResult:
+        """LANDING_TARGET (no target system: every autopilot on the link reads it)."""
+        try:
+            target = TargetMeasurement(self.v.time_s, float(m.angle_x), float(m.angle_y), float(m.distance), int(m.frame),
+                                       bool(getattr(m, "position_valid", 0)), float(m.x), float(m.y), float(m.z),
+                                       float(m.size_x), float(m.size_y))
+        except LandingTargetRejected as exc:
+            self.v.refuse_target(str(exc))
+            return HandleResult([])
+        self.v.landing_target(target)
+        return HandleResult([])
 
     def _on_set_mode(self, m: mavlink.MAVLink_message) -> HandleResult:
         if m.target_system in (0, self.sysid):
@@ -145,6 +159,8 @@ class MessageHandler:
             return (*v.takeoff(p[6]), [])
         if cmd == M.MAV_CMD_NAV_LAND:
             return (*v.land(), [])
+        if cmd == NAV_PRECLAND:
+            return (*v.precision_land(), [])
         if cmd == M.MAV_CMD_DO_SET_MODE:
             return (*self._set_mode(p), [])
         if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:

@@ -18,6 +18,7 @@ class Mode(Enum):
     AUTO_TAKEOFF = (4, 2)
     AUTO_LOITER = (4, 3)
     AUTO_LAND = (4, 6)
+    AUTO_PRECLAND = (4, 9)
     OFFBOARD = (6, 0)
 
     @property
@@ -55,6 +56,6 @@ def refusal(target: Mode, *, armed: bool, landed: bool, setpoints_fresh: bool) -
     """Why switching to ``target`` is refused now, or None if it is allowed (PX4's rules)."""
     if target is Mode.OFFBOARD and not setpoints_fresh:
         return "OFFBOARD refused: stream setpoints first (none received recently)"
-    if target is Mode.AUTO_LAND and landed and not armed:
+    if target in (Mode.AUTO_LAND, Mode.AUTO_PRECLAND) and landed and not armed:
         return "already landed"
     return None

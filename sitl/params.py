@@ -102,7 +102,19 @@ def autopilot_params(cfg: AutopilotConfig) -> list[Param]:
         Param("MAV_SYS_ID", 1, INT32, 1, 255),
         Param("MAV_TYPE", mavlink.MAV_TYPE_QUADROTOR, INT32, 0, 50),
         Param("SYS_AUTOSTART", 4001, INT32, 0, 9_999_999),
-    ] + _bound(cfg, land_bindings(cfg))
+    ] + _bound(cfg, land_bindings(cfg)) + precland_params()
+
+
+def precland_params() -> list[Param]:
+    """PX4's precision landing (PLD_*) and landing target estimator (LTEST_*) parameters, with
+    PX4's defaults; listed last, so the others keep their indices."""
+    from sitl.precland import INT_PARAMS, PX4_LTEST_DEFAULTS, PX4_PRECLAND_DEFAULTS
+
+    ranges = {"PLD_MAX_SRCH": (0, 100), "LTEST_MODE": (0, 1), "LTEST_ACC_UNC": (0.01, math.inf),
+              "LTEST_POS_UNC_IN": (0.001, math.inf), "LTEST_VEL_UNC_IN": (0.001, math.inf),
+              "LTEST_SCALE_X": (0.01, math.inf), "LTEST_SCALE_Y": (0.01, math.inf)}
+    return [Param(name, value, INT32 if name in INT_PARAMS else REAL32, *ranges.get(name, (0.0, math.inf)))
+            for name, value in (PX4_PRECLAND_DEFAULTS | PX4_LTEST_DEFAULTS).items()]
 
 
 def land_bindings(cfg: AutopilotConfig) -> tuple[Binding, ...]:

@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.config import SitlConfig
 from sitl.control import Setpoint
 from sitl.dynamics import VehicleState
+from sitl.landing_target import LandingTargetRejected, TargetMeasurement
 from sitl.modes import Mode
 from sitl.offboard import (
     FRAME_BODY_NED,
@@ -51,6 +52,7 @@ from sitl.params import (
     apply_to_config,
     autopilot_params,
 )
+from sitl.plnd import INT16_PARAMS, PLND_DEFAULTS, REAL_PARAMS, ApPrecLand, ApTargetEstimator
 from sitl.vehicle import SimVehicle, hold_setpoint
 
 M = mavlink
@@ -130,7 +132,8 @@ class CopterParams(ParamStore):
             Param("SYSID_THISMAV", float(cfg.network.system_id), M.MAV_PARAM_TYPE_INT8, 1, 255),
             Param("FRAME_CLASS", 1.0, M.MAV_PARAM_TYPE_INT8, 0, 20),  # quad
             Param("FRAME_TYPE", 1.0, M.MAV_PARAM_TYPE_INT8, 0, 20),  # X
-        ]
+            Param("RNGFND1_TYPE", 0.0, M.MAV_PARAM_TYPE_INT8, 0, 100),  # none, as ArduCopter's SITL
+        ] + plnd_params()
         params[[p.name for p in params].index("DISARM_DELAY")].value = 10.0
         super().__init__(params)
         self._hidden = hidden
@@ -148,6 +151,17 @@ class CopterParams(ParamStore):
         """The PX4 binding an ArduCopter parameter changes (None: not a cascade setting)."""
         px4 = ALIASES.get(name, ("", 1.0))[0]
         return px4 if px4 in BINDING_BY_NAME else None
+
+
+def plnd_params() -> list[Param]:
+    """AC_PrecLand's PLND_* parameters with ArduCopter's defaults (read live here; on ArduCopter
+    PLND_TYPE takes effect after a reboot)."""
+    def kind(name: str) -> int:
+        if name in REAL_PARAMS:
+            return REAL32
+        return M.MAV_PARAM_TYPE_INT16 if name in INT16_PARAMS else M.MAV_PARAM_TYPE_INT8
+
+    return [Param(name, float(value), kind(name)) for name, value in PLND_DEFAULTS.items()]
 
 
 def copter_setpoint(f: TargetFields, position_ned_m: tuple[float, float, float], yaw_rad: float,
@@ -246,6 +260,10 @@ class CopterVehicle(SimVehicle):
             self.mode = Mode.OFFBOARD
             self._sp = hold_setpoint(self.state)
             self._guided_velocity = False
+        elif mode is CopterMode.LAND:
+            self._set_mode(Mode.AUTO_LAND)
+            self.plnd.start(self.precland_pose())
+            self._hold_yaw_rad = self.state.attitude_rad[2]
         elif mode is CopterMode.RTL:
             self._set_mode(Mode.AUTO_LOITER)
             home_n, home_e, _ = self.home_ned_m
@@ -288,6 +306,56 @@ class CopterVehicle(SimVehicle):
     def land(self) -> tuple[int, str]:
         """MAV_CMD_NAV_LAND: ArduCopter switches to LAND."""
         return self.request_copter_mode(CopterMode.LAND)
+
+    # ----- precision landing (AC_PrecLand) -------------------------------------------------
+    def _start_precland(self) -> None:
+        self.target_estimator = ApTargetEstimator(self._param)  # type: ignore[assignment]
+        self.plnd = ApPrecLand(self._param, rangefinder=False)
+
+    def _plnd_on(self) -> bool:
+        return int(self.params.get("PLND_ENABLED")) == 1 and int(self.params.get("PLND_TYPE")) == 1
+
+    def _rangefinder(self) -> bool:
+        return int(self.params.get("RNGFND1_TYPE")) != 0
+
+    def landing_target(self, m: TargetMeasurement) -> bool:
+        """Read only with PLND_ENABLED = 1 and PLND_TYPE = 1 (MAVLink); ignored otherwise."""
+        if not self._plnd_on():
+            return False
+        estimator: ApTargetEstimator = self.target_estimator  # type: ignore[assignment]
+        height = self.precland_pose().height_agl_m if self._rangefinder() else None
+        try:
+            estimator.measure(m, height)
+        except LandingTargetRejected as exc:
+            self.refuse_target(str(exc))
+            return False
+        finally:
+            self._say_all(estimator.events)
+        return True
+
+    def precision_land(self) -> tuple[int, str]:
+        return M.MAV_RESULT_UNSUPPORTED, ""  # ArduCopter has no such command: LAND does it
+
+    def _say_all(self, texts: list[str]) -> None:
+        for text in texts:
+            self.say(M.MAV_SEVERITY_INFO, text)
+        texts.clear()
+
+    def _run_precland(self) -> None:
+        """With precision landing on, the estimator keeps its inertial history every step; in
+        LAND, the guidance replaces the vertical landing's setpoint."""
+        if not self._plnd_on():
+            return
+        estimator: ApTargetEstimator = self.target_estimator  # type: ignore[assignment]
+        pose = self.precland_pose()
+        estimator.update(pose)
+        self._say_all(estimator.events)
+        if self.copter_mode is not CopterMode.LAND or self.landed:
+            return
+        self.plnd.rangefinder = self._rangefinder()
+        guidance = self.plnd.update(pose, estimator.estimate(pose), self.params.get("MPC_LAND_SPEED"))
+        self._say_all(self.plnd.events)
+        self._sp = self._guidance_setpoint(guidance)
 
     # ----- setpoints and failsafes ---------------------------------------------------------
     def offboard_setpoint(self, f: TargetFields) -> bool:

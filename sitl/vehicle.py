@@ -18,9 +18,18 @@ from sitl.config import SitlConfig
 from sitl.control import FlightController, Px4LandDetector, Setpoint, wants_takeoff
 from sitl.disturbance import EpisodeDisturbance
 from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Dynamics, VehicleState
+from sitl.landing_target import LandingTargetRejected, TargetMeasurement
 from sitl.modes import Mode, refusal
 from sitl.offboard import SetpointRejected, TargetFields, from_reported_frame, to_setpoint
 from sitl.params import BINDING_BY_NAME, ParamStore, apply_to_config, autopilot_params
+from sitl.precland import (
+    Guidance,
+    PrecLandMode,
+    Px4PrecLand,
+    Px4State,
+    Px4TargetEstimator,
+    VehiclePose,
+)
 from sitl.world import Touchdown, World
 
 NAN = math.nan
@@ -69,7 +78,9 @@ class SimVehicle:
         self.rng = np.random.default_rng(cfg.world.seed)
         self.events: deque[tuple[int, str]] = deque(maxlen=64)
         self.rejected_setpoints = 0
+        self.rejected_targets = 0
         self.episode = 0
+        self._start_precland()
         spawn = (cfg.world.spawn_ne_m[0], cfg.world.spawn_ne_m[1], 0.0)
         self.home_ned_m = spawn
         self.dynamics.reset(spawn, yaw_rad=self.disturbance.yaw_rad)
@@ -93,6 +104,14 @@ class SimVehicle:
         self._camera_history: deque[VehicleState] | None = deque([self.state], maxlen=k + 1) if k > 0 else None
         self._attitude_noise_step = -1
         self._attitude_noise = np.zeros(6)
+
+    def _start_precland(self) -> None:
+        """Personality: the precision landing it has (PX4's precland and target estimator)."""
+        self.target_estimator = Px4TargetEstimator(self._param)
+        self.precland = Px4PrecLand(self._param)
+
+    def _param(self, name: str) -> float:
+        return self.params.get(name)
 
     # ----- state -------------------------------------------------------------------------
     def _enter_landed_disarmed(self) -> None:
@@ -156,9 +175,12 @@ class SimVehicle:
             return mavlink.MAV_LANDED_STATE_ON_GROUND
         if self.mode is Mode.AUTO_TAKEOFF:
             return mavlink.MAV_LANDED_STATE_TAKEOFF
-        if self.mode is Mode.AUTO_LAND:
+        if self.mode is Mode.AUTO_LAND or (self.mode is Mode.AUTO_PRECLAND and self._precland_descending()):
             return mavlink.MAV_LANDED_STATE_LANDING
         return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def _precland_descending(self) -> bool:
+        return self.precland.state in (Px4State.DESCEND_ABOVE_TARGET, Px4State.FINAL_APPROACH, Px4State.FALLBACK)
 
     def heartbeat_mode(self) -> tuple[int, int]:
         """Personality: HEARTBEAT (autopilot, custom_mode)."""
@@ -218,6 +240,7 @@ class SimVehicle:
         return new
 
     def _progress_mode(self, state: VehicleState) -> None:
+        self._run_precland()
         if self.mode is Mode.AUTO_TAKEOFF and not math.isnan(self._sp.position_ned_m[2]):
             if abs(state.position_ned_m[2] - self._sp.position_ned_m[2]) < 0.15:
                 self.say(mavlink.MAV_SEVERITY_INFO, "Takeoff complete, holding")
@@ -269,7 +292,7 @@ class SimVehicle:
         landed_for = t_s - self._landed_since_s
         # as PX4, the landed disarms need a flight since arming (a touchdown); armed on the ground,
         # only the preflight timeout disarms, whatever the mode
-        if self.mode is Mode.AUTO_LAND and self.touchdown is not None and landed_for > 0.5:
+        if self.mode in (Mode.AUTO_LAND, Mode.AUTO_PRECLAND) and self.touchdown is not None and landed_for > 0.5:
             self._disarm("Landed, disarming")
         elif self.touchdown is not None and landed_for > self.params.get("COM_DISARM_LAND") > 0:
             self._disarm("Landed, disarming")
@@ -303,6 +326,10 @@ class SimVehicle:
             self._failsafe_since_s = None
         if mode is Mode.AUTO_LAND:
             self._sp = Setpoint(position_ned_m=(n, e, NAN), velocity_ned_m_s=(0.0, 0.0, self.params.get("MPC_LAND_SPEED")), yaw_rad=yaw)
+        elif mode is Mode.AUTO_PRECLAND:
+            self.precland.start(self.precland_pose(), PrecLandMode.REQUIRED)
+            self._hold_yaw_rad = yaw
+            self._sp = hold_setpoint(s)
         elif mode is Mode.AUTO_TAKEOFF:
             ground_d = -self.world.surface_height_m(n, e, s.time_s)
             self._sp = Setpoint(position_ned_m=(n, e, ground_d - self._takeoff_alt_m), velocity_ned_m_s=(0.0, 0.0, NAN), yaw_rad=yaw)
@@ -365,6 +392,66 @@ class SimVehicle:
         self._set_mode(Mode.AUTO_LAND)
         self.say(mavlink.MAV_SEVERITY_INFO, "Landing")
         return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    # ----- precision landing ---------------------------------------------------------------
+    def precland_pose(self) -> VehiclePose:
+        """The vehicle as its estimator reports it (the local frame of LOCAL_POSITION_NED), with
+        the height above what is below it (a distance sensor)."""
+        s = self.state
+        n, e, d = s.position_ned_m
+        height = -d - self.world.surface_height_m(n, e, s.time_s)
+        return VehiclePose(s.time_s, (n, e, d - self.height_offset_m), s.velocity_ned_m_s, s.attitude_rad, height)
+
+    def landing_target(self, m: TargetMeasurement) -> bool:
+        """Personality: LANDING_TARGET; False (and a warning) when it is refused."""
+        try:
+            self.target_estimator.measure(m, self.precland_pose())
+        except LandingTargetRejected as exc:
+            self.refuse_target(str(exc))
+            return False
+        return True
+
+    def refuse_target(self, why: str) -> None:
+        """A refused LANDING_TARGET: counted, and said now and then (a stream of them must not
+        flood STATUSTEXT)."""
+        self.rejected_targets += 1
+        if self.rejected_targets in (1, 10, 100) or self.rejected_targets % 1000 == 0:
+            self.say(mavlink.MAV_SEVERITY_CRITICAL, why)
+
+    def precision_land(self) -> tuple[int, str]:
+        """Personality: PX4's VEHICLE_CMD_NAV_PRECLAND (MAVLink command 23): AUTO.PRECLAND."""
+        if self.landed and not self.armed:
+            return mavlink.MAV_RESULT_DENIED, "Precision landing denied: landed"
+        return self.request_mode(Mode.AUTO_PRECLAND)
+
+    def _run_precland(self) -> None:
+        """The estimator runs while it has a target; the state machine only in AUTO.PRECLAND.
+        (Nothing at all otherwise: this is in every FDM step of every experiment.)"""
+        if self.mode is not Mode.AUTO_PRECLAND and not self.target_estimator.active:
+            return
+        pose = self.precland_pose()
+        self.target_estimator.predict(pose)
+        if self.mode is not Mode.AUTO_PRECLAND:
+            return
+        if self.landed and self.touchdown is not None:
+            self.precland.landed(pose.time_s)
+        guidance = self.precland.update(pose, *self.target_estimator.take())
+        for text in self.precland.events:
+            self.say(mavlink.MAV_SEVERITY_INFO, text)
+        self.precland.events.clear()
+        self._sp = self._guidance_setpoint(guidance)
+
+    def _guidance_setpoint(self, g: Guidance) -> Setpoint:
+        """A precision landing's guidance (in the reported frame) as a controller setpoint."""
+        velocity_ff = (g.vn_m_s, g.ve_m_s)
+        if g.down_m is None:
+            down = g.descent_m_s if g.descent_m_s is not None else self.params.get("MPC_LAND_SPEED")
+            return Setpoint(position_ned_m=(g.north_m, g.east_m, NAN), velocity_ned_m_s=(*velocity_ff, down),
+                            yaw_rad=self._hold_yaw_rad)
+        return Setpoint(position_ned_m=(g.north_m, g.east_m, g.down_m + self.height_offset_m),
+                        velocity_ned_m_s=(*velocity_ff, 0.0), yaw_rad=self._hold_yaw_rad)
+
+    _hold_yaw_rad = 0.0
 
     # ----- setpoint streams ----------------------------------------------------------------
     def offboard_setpoint(self, f: TargetFields) -> bool:
