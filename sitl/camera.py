@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
+from sitl import pad_marker
 from sitl.config import CameraConfig
 from sitl.world import World
 
@@ -110,8 +111,10 @@ def ground_pyramid(seed: int) -> TexturePyramid:
     return TexturePyramid(_pyramid(base, _GROUND_LEVELS, wrap=True), _GROUND_TEXEL_M)
 
 
-def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radius_m: float) -> TexturePyramid:
-    """The roof (long side north-south) with the pad: a magenta disc and a white centre dot."""
+def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radius_m: float,
+                 marker: str = "none") -> TexturePyramid:
+    """The roof (long side north-south) with the pad: a magenta disc and a white centre dot, and
+    with ``marker="aruco"`` the ArUco board of sitl/pad_marker.py drawn over it."""
     rows, cols = int(round(length_m / _ROOF_TEXEL_M)), int(round(width_m / _ROOF_TEXEL_M))
     base = np.empty((rows, cols, 3), np.uint8)
     base[:] = ROOF_BGR
@@ -120,7 +123,16 @@ def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radiu
     centre = (int(round((cols - 1) / 2 * 16)), int(round((rows - 1) / 2 * 16)))
     for radius_m, colour in ((pad_radius_m, PAD_BGR), (dot_radius_m, DOT_BGR)):
         cv2.circle(base, centre, int(round(radius_m / _ROOF_TEXEL_M * 16)), colour, -1, cv2.LINE_AA, 4)
+    if marker == "aruco":
+        pad_marker.check_fits(length_m, width_m)
+        pad_marker.draw_board(base)
     return TexturePyramid(_pyramid(base, _ROOF_LEVELS, wrap=False), _ROOF_TEXEL_M)
+
+
+def camera_matrix(cfg: CameraConfig) -> np.ndarray:
+    """The pinhole intrinsics K of the module doc (the renderer's; a detector's for its frames)."""
+    f = (cfg.width_px / 2.0) / np.tan(np.radians(cfg.hfov_deg) / 2.0)
+    return np.array([[f, 0.0, (cfg.width_px - 1) / 2.0], [0.0, f, (cfg.height_px - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
 def rotation_ned_from_body(attitude_rad: ArrayLike) -> np.ndarray:
@@ -153,7 +165,7 @@ class CameraRenderer:
         wc = world.cfg
         self.ground: TexturePyramid = ground_pyramid(cfg.texture_seed)
         self.roof: TexturePyramid = roof_pyramid(
-            wc.vehicle_length_m, wc.vehicle_width_m, wc.pad_radius_m, cfg.pad_dot_radius_m
+            wc.vehicle_length_m, wc.vehicle_width_m, wc.pad_radius_m, cfg.pad_dot_radius_m, cfg.pad_marker
         )
         # Per-frame constants, computed once (each is the very value the per-frame code used to
         # compute, so frames stay bit-identical; tests/sitl/test_camera_speed_equivalence.py).

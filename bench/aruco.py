@@ -1,0 +1,78 @@
+"""Benchmark: the ArUco pad detector (companion/vision/aruco.py) on rendered frames.
+
+Random poses over the pad as in bench/perception.py (height from touchdown to beyond the start,
+roll and pitch up to 20 degrees, any yaw, an offset that keeps the pad's centre in view), truth
+from the renderer's own pose. Per height band: how often the board is decoded, and the pose
+error (metres, the pad centre in the camera frame) at the median and p95. The last line of
+stdout is one JSON object.
+
+    python bench/aruco.py [--frames N] [--seed S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+
+import cv2
+import numpy as np
+
+from companion.vision.aruco import ArucoPadDetector
+from sitl.camera import CAM_FROM_BODY, CameraRenderer, camera_matrix, rotation_ned_from_body
+from sitl.config import CameraConfig, WorldConfig
+from sitl.world import World
+
+BANDS_M = ((0.15, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 8.0), (8.0, 10.0))
+MAX_TILT_RAD = math.radians(20.0)
+
+
+def sample(rng: np.random.Generator, renderer: CameraRenderer, pad: np.ndarray, low: float, high: float):  # type: ignore[no-untyped-def]
+    """A pose whose image holds the pad's centre at least 10 % inside the border."""
+    while True:
+        height = rng.uniform(low, high)
+        offset = rng.uniform(-0.8 * height, 0.8 * height, 2)
+        position = pad + np.array([offset[0], offset[1], -height])
+        attitude = (rng.uniform(-MAX_TILT_RAD, MAX_TILT_RAD), rng.uniform(-MAX_TILT_RAD, MAX_TILT_RAD), rng.uniform(-math.pi, math.pi))
+        uv = renderer.project(pad, position, attitude)
+        if uv is not None and 32 <= uv[0] <= 288 and 24 <= uv[1] <= 216:
+            return position, attitude
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--frames", type=int, default=100, help="frames per height band")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    cfg = CameraConfig(pad_marker="aruco")
+    renderer = CameraRenderer(cfg, World(WorldConfig()))
+    detector = ArucoPadDetector(camera_matrix(cfg), (cfg.width_px, cfg.height_px))
+    pad = renderer.world.pad_ned(0.0)
+    rng = np.random.default_rng(args.seed)
+    bands, times = [], []
+    for low, high in BANDS_M:
+        errors, seen = [], 0
+        for _ in range(args.frames):
+            position, attitude = sample(rng, renderer, pad, low, high)
+            image = renderer.render(position, attitude, 0.0)
+            start = time.perf_counter()
+            pose = detector.detect(image)
+            times.append(time.perf_counter() - start)
+            if pose is None:
+                continue
+            seen += 1
+            truth = CAM_FROM_BODY @ rotation_ned_from_body(attitude).T @ (pad - position)
+            errors.append(float(np.linalg.norm(np.array(pose.position_cam_m) - truth)))
+        err = np.array(errors) if errors else np.array([math.nan])
+        bands.append({"height_m": [low, high], "frames": args.frames, "decoded": round(seen / args.frames, 3),
+                      "error_m_p50": round(float(np.median(err)), 4), "error_m_p95": round(float(np.percentile(err, 95)), 4)})
+        print(f"{low:4.1f}-{high:4.1f} m: decoded {seen}/{args.frames}, error p50 {bands[-1]['error_m_p50']} m, "
+              f"p95 {bands[-1]['error_m_p95']} m")
+    print(json.dumps({"bench": "aruco", "seed": args.seed, "bands": bands,
+                      "detect_ms_p50": round(float(np.median(times)) * 1e3, 2)}))
+
+
+if __name__ == "__main__":
+    main()
