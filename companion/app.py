@@ -28,6 +28,7 @@ from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.ask import HelpAsker
+from companion.control.precland import PrecisionLander
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRecord, EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
@@ -46,6 +47,7 @@ from companion.link.dialect import Dialect, dialect_for
 from companion.link.signing import read_key
 from companion.run_folder import prepare_run_dir, removed_if_unused
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
+from companion.vision.aruco import ArucoPadDetector
 from companion.vision.camera import CameraSource, open_camera
 from companion.vision.observation import Observation
 from companion.vision.observer import Observer
@@ -54,10 +56,12 @@ from companion.vision.rendered import RENDER_SCHEME, RenderedCamera
 
 if TYPE_CHECKING:
     from companion.pictures.recorder import FlightRecorder
+    from sitl.config import CameraConfig
 
 log = logging.getLogger(__name__)
 Condition = Literal["demo", "int", "col", "ask", "eval"]
-PilotKind = Literal["expert", "manual", "gamepad", "none"]
+PilotKind = Literal["expert", "manual", "gamepad", "none", "precland"]
+PRECLAND = "precland"  # not a person: the autopilot's own precision landing (companion/control/precland.py)
 CONDITIONS = ("demo", "int", "col", "ask", "eval")
 
 
@@ -100,7 +104,7 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None
         from companion.inputs.gamepad import GamepadInput
 
         return GamepadInput(cfg.pilot)
-    if kind == "none":
+    if kind in ("none", PRECLAND):
         return NoHuman()
     if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2"
         from companion.inputs.synthetic import on_call_pilot, profile_named, synthetic_pilot
@@ -110,7 +114,7 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None
             steps = round(cfg.ask.synthetic_response_s * cfg.session.control_rate_hz)
             return on_call_pilot(profile, cfg.pilot, cfg.session.seed, steps)
         return synthetic_pilot(profile, cfg.pilot, cfg.session.seed)
-    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none or synthetic:P1..P4")
+    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none, precland or synthetic:P1..P4")
 
 
 def attach_human(human: HumanInput, link: VehicleLink) -> None:
@@ -339,6 +343,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     ``control``: an operator watching each step, who may pause, end an episode or stop the run.
     """
     fix_mmap_threshold()  # a long run's memory grows with its data only (colcommon/heap.py)
+    opts = precland_options(opts)
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
     cfg = asking_config(cfg, opts.condition)
@@ -380,6 +385,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             landing=cfg.landing,
             judge_radius_m=camera.success_radius_m if isinstance(camera, RenderedCamera) and simulator is None else None,
         )
+        parts.lander = _lander_for(opts, link, camera)
         if control is not None:
             control.started(opened, learner, dataset)
         episode_runner = EpisodeRunner(parts)
@@ -416,6 +422,41 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     return result
 
 
+def precland_options(opts: RunOptions) -> RunOptions:
+    """The precland pilot flies no policy: nothing learned, no dataset or checkpoints, every
+    episode autonomous (its records still go to episodes.jsonl). Its board must be on the pad
+    before any SITL starts (ConfigError saying how)."""
+    if opts.pilot != PRECLAND:
+        return opts
+    precland_camera(opts.config_path)
+    return dataclasses.replace(opts, condition="eval", learn=False, record=False)
+
+
+def precland_camera(config_path: Path | None) -> CameraConfig:
+    """The ``[sitl.camera]`` whose pad carries the ArUco board: the detector's intrinsics."""
+    from sitl.config import load_sitl_config
+
+    camera = load_sitl_config(config_path).camera
+    if camera.pad_marker != "aruco":
+        raise ConfigError('--pilot precland needs the ArUco board on the pad: set [sitl.camera] pad_marker = "aruco" '
+                          "in the --config file (configs/precland.toml does); the colour pad gives no pose")
+    return camera
+
+
+def _lander_for(opts: RunOptions, link: VehicleLink, camera: CameraSource | None) -> PrecisionLander | None:
+    return build_lander(link, camera, opts.config_path) if opts.pilot == PRECLAND else None
+
+
+def build_lander(link: VehicleLink, camera: CameraSource | None, config_path: Path | None) -> PrecisionLander:
+    """The precision lander with the detector for the camera of ``[sitl.camera]`` (our renderer's
+    intrinsics: a real camera needs its own calibration)."""
+    from sitl.camera import camera_matrix
+
+    camera_cfg = precland_camera(config_path)
+    detector = ArucoPadDetector(camera_matrix(camera_cfg), (camera_cfg.width_px, camera_cfg.height_px))
+    return PrecisionLander(link, camera, detector)
+
+
 def _checked_start(cfg: CompanionConfig, opts: RunOptions) -> PolicySnapshot | None:
     """The policy to start from, after refusing what a user can mistype (a missing checkpoint,
     a connection string no link accepts) before any folder is made, SITL started or port opened."""
@@ -445,7 +486,7 @@ def _lockstep_for(opts: RunOptions) -> bool:
     """As asked; else lockstep for a synthetic pilot in our own SITL's PX4 personality."""
     if opts.lockstep is not None:
         return opts.lockstep
-    synthetic = opts.pilot in ("expert", "none") or opts.pilot.startswith("synthetic")
+    synthetic = opts.pilot in ("expert", "none", PRECLAND) or opts.pilot.startswith("synthetic")
     return synthetic and not opts.connection and _sitl_autopilot(opts.config_path) == "px4"
 
 

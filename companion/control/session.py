@@ -25,6 +25,7 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
+from companion.control.precland import PrecisionLander
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
 from companion.control.touchdown import TouchdownAssist, touchdown_need
@@ -178,6 +179,9 @@ class EpisodeParts:
     judge_radius_m: float | None = None
     """Without a simulator: judge success from the vehicle's reported position, within this of
     the pad (set with a rendered camera, whose pad is where the estimate puts it); None: unknown."""
+    lander: PrecisionLander | None = None
+    """The autopilot's own precision landing flies each episode after its start, fed with
+    LANDING_TARGET (companion/control/precland.py); None: the person or the policy flies."""
 
 
 class EpisodeRunner:
@@ -450,7 +454,11 @@ class EpisodeRunner:
         outcome, version, steps = "timeout", None, 0
         try:
             self._evidence_note = None
-            outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
+            if self.p.lander is not None:
+                outcome, version, steps, snap = self._fly_precland(self.p.lander, snap)
+                notes.append(self.p.lander.counts.note())
+            else:
+                outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
             if outcome == "touchdown" and self._evidence_note is not None:
                 notes.append(self._evidence_note)
         except ColError as exc:
@@ -571,6 +579,44 @@ class EpisodeRunner:
                 self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
             snap = self._next_snapshot()
         return outcome, version, steps, snap
+
+    def _fly_precland(self, lander: PrecisionLander, snap: VehicleSnapshot | None
+                      ) -> tuple[str, int | None, int, VehicleSnapshot | None]:
+        """The autopilot lands on the companion's LANDING_TARGET, one per camera frame; in
+        lockstep each frame is still answered (a zero setpoint the vehicle does not fly)."""
+        lander.begin()
+        with self._hold_stream_while_asking():  # PX4 leaves OFFBOARD only once the ACK is in
+            lander.engage(self.dialect)
+        outcome, steps = "timeout", 0
+        for step in range(self.p.cfg.max_steps):
+            if snap is None:
+                snap = self._recover_link()
+                if snap is None:
+                    return "link_lost", None, steps, None
+            if step > 0 and self._touched_down(snap):
+                outcome = "touchdown"
+                break
+            ended = self.p.control.end_requested() if self.p.control is not None else None
+            if ended is not None:
+                outcome = ended
+                break
+            steps = step + 1
+            lander.feed(snap, self.p.lockstep, self.dialect)
+            snap = self._next_precland_snapshot(lander)
+        return outcome, None, steps, snap
+
+    def _next_precland_snapshot(self, lander: PrecisionLander) -> VehicleSnapshot | None:
+        """Lockstep: answer this frame, then the next. Real time: the newest telemetry (the wait
+        for the camera's next frame paced the step; without a camera the control rate does)."""
+        if self.p.lockstep:
+            self._send(HOLD)
+            return self._next_snapshot()
+        if lander.camera is None:
+            return self._next_snapshot()
+        snap = self.p.link.state() if self.p.link.link_alive() else None
+        if snap is not None:
+            self.home.update(snap)
+        return snap
 
     def _touched_down(self, snap: VehicleSnapshot) -> bool:
         """The vehicle's landed state; for a vehicle that reports none, the companion's evidence."""

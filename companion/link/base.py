@@ -11,10 +11,14 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from companion.errors import LinkError
 from companion.link.manual_control import ManualControlMessage
 from companion.link.setpoints import VelocitySetpoint
+
+if TYPE_CHECKING:
+    from companion.link.landing_target import LandingTarget
 
 Vec3 = tuple[float, float, float]
 ManualControlCallback = Callable[[ManualControlMessage], None]
@@ -211,6 +215,16 @@ class VehicleLink(ABC):
         """One of the vehicle's parameters by name (PARAM_REQUEST_READ); None when the vehicle
         does not answer within ``timeout_s`` or this backend cannot ask."""
         return None
+
+    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+        """Set one of the vehicle's parameters (PARAM_SET); the value it echoes in PARAM_VALUE,
+        or None when no echo came within ``timeout_s``. A backend that cannot: LinkError."""
+        raise LinkError(f"this link ({type(self).__name__}) cannot set parameters; use the pymavlink link")
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        """Send one LANDING_TARGET (companion/link/landing_target.py) for the vehicle's precision
+        landing. A backend that cannot: LinkError."""
+        raise LinkError(f"this link ({type(self).__name__}) cannot send LANDING_TARGET; use the pymavlink link")
 
     def send_statustext(self, text: str, severity: int = 4) -> bool:
         """Tell the ground stations (STATUSTEXT, at most 50 characters; ``severity`` is

@@ -16,6 +16,7 @@ from companion.errors import ConfigError
 
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_NED = 8
+MAV_FRAME_BODY_FRD = 12
 BODY_VELOCITY_TYPE_MASK = 0x5C7  # use vx, vy, vz, yaw rate; ignore position, acceleration, yaw
 POSITION_TYPE_MASK = 0x9F8  # use x, y, z, yaw; ignore velocity, acceleration, yaw rate
 
@@ -55,6 +56,12 @@ class Dialect:
     body_type_mask: int = BODY_VELOCITY_TYPE_MASK
     position_frame: int = MAV_FRAME_LOCAL_NED
     position_type_mask: int = POSITION_TYPE_MASK
+    precland_mode: str = ""
+    """The mode that lands on the companion's LANDING_TARGET (companion/link/landing_target.py)."""
+    precland_params: tuple[tuple[str, float], ...] = ()
+    """Parameters set (PARAM_SET) before entering ``precland_mode``."""
+    landing_target_frame: int = MAV_FRAME_LOCAL_NED
+    """The LANDING_TARGET frame this autopilot reads positions in (it refuses the others)."""
 
     def is_offboard(self, mode: str) -> bool:
         return mode == self.offboard_mode
@@ -92,6 +99,10 @@ PX4 = Dialect(
     lockstep_marker="SYSTEM_TIME",
     takeoff_hint="arm first, and make sure the vehicle has a position estimate",
     arm_hint="read the vehicle's STATUSTEXT pre-arm messages, fix them and retry",
+    # Precision landing: its own flight mode; LANDING_TARGET positions only in LOCAL_NED, read as
+    # the target's position in the local frame (mavlink_receiver -> landing_target_pose x_abs).
+    precland_mode="AUTO.PRECLAND",
+    landing_target_frame=MAV_FRAME_LOCAL_NED,
 )
 
 ARDUPILOT = Dialect(
@@ -109,6 +120,11 @@ ARDUPILOT = Dialect(
     confirm_takeoff_mode=True,
     arm_hint="ArduCopter refuses to arm until its pre-arm checks pass (the EKF settles for "
     "about 40 s after boot); read its 'PreArm:' messages",
+    # Precision landing: LAND with AC_PrecLand enabled and its MAVLink (companion) backend; it reads
+    # LANDING_TARGET positions only in BODY_FRD (AC_PrecLand_Companion::handle_msg).
+    precland_mode="LAND",
+    precland_params=(("PLND_ENABLED", 1.0), ("PLND_TYPE", 1.0)),
+    landing_target_frame=MAV_FRAME_BODY_FRD,
 )
 
 _BY_AUTOPILOT = {"PX4": PX4, "ARDUPILOTMEGA": ARDUPILOT}

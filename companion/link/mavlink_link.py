@@ -13,7 +13,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink
@@ -33,6 +33,9 @@ from companion.link.dialect import PX4, Dialect, dialect_for
 from companion.link.mavlink_io import MavlinkIO
 from companion.link.setpoints import VelocitySetpoint
 from companion.link.waiters import Waiter
+
+if TYPE_CHECKING:
+    from companion.link.landing_target import LandingTarget
 
 log = logging.getLogger(__name__)
 
@@ -334,6 +337,27 @@ class MavlinkLink(VehicleLink):
             self._io.waiters.remove(waiter)
         log.info("the vehicle did not answer PARAM_REQUEST_READ(%s) within %.1f s", name, timeout_s)
         return None
+
+    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+        """PARAM_SET, sent again every ``command_timeout_s`` until PARAM_VALUE echoes the name."""
+        self._require_alive()
+        tsys, tcomp = self._target()
+        waiter = self._io.waiters.add(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
+        deadline = self._clock() + timeout_s
+        try:
+            while (remaining := deadline - self._clock()) > 0:
+                self._io.send(self._io.mav.param_set_encode(
+                    tsys, tcomp, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32))
+                reply = waiter.get(min(self.cfg.command_timeout_s, remaining))
+                if reply is not None:
+                    return float(reply.param_value)
+        finally:
+            self._io.waiters.remove(waiter)
+        return None
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        self._require_alive()
+        self._io.send(self._io.mav.landing_target_encode(*target.encode_args()))
 
     def _set_param(self, name: str, value: float) -> None:
         """PARAM_SET, waiting briefly for the PARAM_VALUE echo (logged if it never comes)."""

@@ -24,8 +24,11 @@ def run_config(cfg: CompanionConfig, config_path: Path | None) -> dict[str, Any]
     """The configuration as JSON: the companion's tables, the SITL's, and the file they came from."""
     from sitl.config import load_sitl_config
 
+    sitl = load_sitl_config(config_path).model_dump(mode="json")
+    if sitl["camera"].get("pad_marker") == "none":  # added later: at its default, older folders still continue
+        del sitl["camera"]["pad_marker"]
     return {"config_path": None if config_path is None else str(config_path),
-            "companion": cfg.model_dump(mode="json"), "sitl": load_sitl_config(config_path).model_dump(mode="json")}
+            "companion": cfg.model_dump(mode="json"), "sitl": sitl}
 
 
 def task_summary(config: dict[str, Any]) -> dict[str, Any]:

@@ -115,7 +115,7 @@ class FakeAutopilot:
         if name.startswith("UNKNOWN"):
             return mavlink.MAV_RESULT_UNSUPPORTED, []
         self.state.mode = name
-        if name == "AUTO.LAND":
+        if name in ("AUTO.LAND", "AUTO.PRECLAND"):  # both descend here; PRECLAND towards nothing
             self.state.landed_state = (
                 "LANDING" if self.state.landed_state == "IN_AIR" else self.state.landed_state
             )

@@ -1,0 +1,121 @@
+"""The baseline an operator would fly: the autopilot's own precision landing, fed by the companion.
+
+After the episode's start (the companion flew there), the landing is handed over: the dialect's
+parameters and mode (PX4 AUTO.PRECLAND; ArduPilot PLND_* and LAND), then one LANDING_TARGET per
+camera frame in which the pad's board is decoded (companion/link/landing_target.py has the
+contract), until the vehicle reports touchdown. Nothing here flies the vehicle.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+from companion.errors import CommandRejected
+from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.dialect import Dialect
+from companion.link.landing_target import LandingTarget, landing_target
+from companion.vision.aruco import ArucoPadDetector
+from companion.vision.camera import CameraSource, SitlCameraSource
+from sitl.frames import Frame
+
+log = logging.getLogger(__name__)
+PARAM_TOLERANCE = 1e-3
+
+
+@dataclass
+class PreclandCounts:
+    """One episode's frames, detections and messages sent, for its record."""
+
+    frames: int = 0
+    detections: int = 0
+    sent: int = 0
+    refused: int = 0  # detections that made no valid LANDING_TARGET (non-finite telemetry)
+
+    def note(self) -> str:
+        return (f"precland: {self.sent} LANDING_TARGET from {self.frames} camera frames "
+                f"({self.detections} with the board decoded)")
+
+
+class PrecisionLander:
+    """Asks for the autopilot's precision landing and streams LANDING_TARGET from the camera."""
+
+    def __init__(self, link: VehicleLink, camera: CameraSource | None, detector: ArucoPadDetector,
+                 frame_timeout_s: float = 0.5) -> None:
+        self.link = link
+        self.camera = camera
+        self.detector = detector
+        self.frame_timeout_s = frame_timeout_s
+        self.counts = PreclandCounts()
+        self.sent: list[LandingTarget] = []  # this episode's, in order (tests and records read it)
+        self._last_frame_ms = -1
+        # Frames of our SITL and of the rendered camera carry the vehicle's boot time; any other
+        # camera's stamps are its own, so the telemetry's time stands in for them.
+        self._vehicle_clock = isinstance(camera, SitlCameraSource) or bool(getattr(camera, "vehicle_time_stamps", False))
+
+    def begin(self) -> None:
+        self.counts = PreclandCounts()
+        self.sent = []
+        if self.camera is None:
+            log.warning("precland without a camera: no LANDING_TARGET will be sent; the autopilot lands without a target")
+
+    def engage(self, dialect: Dialect) -> None:
+        """The dialect's parameters (each checked against the vehicle's echo), then its mode."""
+        if not dialect.precland_mode:
+            raise CommandRejected("precision landing", "UNSUPPORTED", f"{dialect.name} has no precision landing mode here",
+                                  origin="companion")
+        for name, value in dialect.precland_params:
+            echoed = self.link.set_param(name, value)
+            if echoed is None or not math.isclose(echoed, value, abs_tol=PARAM_TOLERANCE):
+                raise CommandRejected(f"PARAM_SET {name}={value:g}", "NOT_CONFIRMED",
+                                      f"the vehicle echoed {echoed}; set it at the ground station (ArduCopter "
+                                      "applies PLND_TYPE after a reboot) and retry")
+        self.link.set_mode(dialect.precland_mode)
+        log.info("precision landing: %s asked (%s)", dialect.precland_mode,
+                 ", ".join(f"{n}={v:g}" for n, v in dialect.precland_params) or "no parameters")
+
+    def frame(self, snap: VehicleSnapshot, lockstep: bool) -> Frame | None:
+        """Lockstep: the frame of this step. Real time: the next frame after the last one used
+        (waiting for it paces the loop at the camera's rate)."""
+        if self.camera is None:
+            return None
+        if lockstep and snap.frame_time_boot_ms is not None:
+            return self.camera.frame_at(int(snap.frame_time_boot_ms), self.frame_timeout_s)
+        frame = self.camera.frame_at(self._last_frame_ms + 1, self.frame_timeout_s)
+        if frame is not None:
+            self._last_frame_ms = frame.time_boot_ms
+        return frame
+
+    def target(self, frame: Frame, snap: VehicleSnapshot, dialect: Dialect) -> LandingTarget | None:
+        """The LANDING_TARGET for one frame (None: the board is not decoded in it)."""
+        try:
+            pose = self.detector.detect(frame.image)
+        except ValueError as exc:  # a corrupt image or another camera's size: no target from it
+            log.warning("precland: frame %d unusable: %s", frame.frame_number, exc)
+            return None
+        if pose is None:
+            return None
+        self.counts.detections += 1
+        stamp = frame.time_boot_ms if self._vehicle_clock else snap.time_boot_ms
+        try:
+            return landing_target(pose, self.detector.camera_matrix, stamp, dialect.landing_target_frame,
+                                  snap.attitude_rad, snap.position_ned_m)
+        except ValueError as exc:  # non-finite telemetry: never a target the vehicle would fly to
+            self.counts.refused += 1
+            log.warning("precland: no LANDING_TARGET for frame %d: %s", frame.frame_number, exc)
+            return None
+
+    def feed(self, snap: VehicleSnapshot, lockstep: bool, dialect: Dialect) -> LandingTarget | None:
+        """One camera frame: detect, and send its LANDING_TARGET when the pad is seen."""
+        frame = self.frame(snap, lockstep)
+        if frame is None:
+            return None
+        self.counts.frames += 1
+        target = self.target(frame, snap, dialect)
+        if target is not None:
+            self.link.send_landing_target(target)
+            self.counts.sent += 1
+            self.sent.append(target)
+        return target
+

@@ -1,0 +1,219 @@
+"""The precision-landing pilot: what it asks of each autopilot, and the LANDING_TARGET it streams,
+in memory and over sockets against the fake vehicle."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.commands import CommandMapper
+from companion.config import CompanionConfig, LinkConfig
+from companion.control.arbiter import Phase
+from companion.control.precland import PrecisionLander
+from companion.control.safety import Geofence, SetpointLimiter
+from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.errors import CommandRejected
+from companion.inputs.base import HumanCommand, HumanInput
+from companion.link.dialect import ARDUPILOT, PX4
+from companion.link.landing_target import (
+    MAV_FRAME_BODY_FRD,
+    MAV_FRAME_LOCAL_NED,
+    LandingTarget,
+    landing_target,
+)
+from companion.link.mavlink_link import MavlinkLink
+from companion.testing.fake_vehicle import FakeVehicle
+from companion.vision.aruco import ArucoPadDetector
+from companion.vision.observation import Observation
+from companion.vision.observer import Observer
+from companion.vision.perception import PadDetector
+from companion.vision.rendered import RenderedCamera
+from sitl.camera import CameraRenderer, camera_matrix
+from sitl.config import CameraConfig, WorldConfig
+from sitl.frames import Frame
+from sitl.world import World
+
+MARKED = CameraConfig(pad_marker="aruco")
+K = camera_matrix(MARKED)
+CAMERA_RATE_HZ = 12.0
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+def detector() -> ArucoPadDetector:
+    return ArucoPadDetector(K, (MARKED.width_px, MARKED.height_px))
+
+
+class RecordingLink:
+    """The calls a lander makes: parameters (echoed as ``echo`` says), modes, targets."""
+
+    def __init__(self, echo: dict[str, float] | None = None) -> None:
+        self.calls: list[tuple[str, Any]] = []
+        self.echo = echo
+
+    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+        self.calls.append(("param", (name, value)))
+        return value if self.echo is None else self.echo.get(name)
+
+    def set_mode(self, name: str) -> None:
+        self.calls.append(("mode", name))
+
+    def send_landing_target(self, target: LandingTarget) -> None:
+        self.calls.append(("target", target))
+
+
+class OneFrameCamera:
+    """Hands out one frame for every stamp asked."""
+
+    def __init__(self, image: np.ndarray) -> None:
+        self.image = image
+
+    def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame:
+        return Frame(1, time_boot_ms, self.image)
+
+
+def snapshot(attitude: tuple[float, float, float] = (0.0, 0.0, 0.0), position=(0.0, 0.0, -4.0)):  # type: ignore[no-untyped-def]
+    from companion.link.base import VehicleSnapshot
+
+    return VehicleSnapshot(0.0, 5000, 5000, 1, "PX4", True, "AUTO.PRECLAND", "IN_AIR", position,
+                           (0.0, 0.0, 0.0), attitude, (0.0, 0.0, 0.0), 0.0, True, True)
+
+
+def rendered(height_above_roof_m: float, marker: CameraConfig = MARKED) -> np.ndarray:
+    world = World(WorldConfig())
+    return CameraRenderer(marker, world).render(world.pad_ned(0.0) + np.array([0.0, 0.0, -height_above_roof_m]),
+                                                (0.0, 0.0, 0.0), 0.0)
+
+
+def test_px4_is_asked_for_auto_precland_and_nothing_else() -> None:
+    link = RecordingLink()
+    PrecisionLander(link, None, detector()).engage(PX4)  # type: ignore[arg-type]
+    assert link.calls == [("mode", "AUTO.PRECLAND")]
+
+
+def test_ardupilot_gets_its_plnd_parameters_then_land() -> None:
+    link = RecordingLink()
+    PrecisionLander(link, None, detector()).engage(ARDUPILOT)  # type: ignore[arg-type]
+    assert link.calls == [("param", ("PLND_ENABLED", 1.0)), ("param", ("PLND_TYPE", 1.0)), ("mode", "LAND")]
+
+
+@pytest.mark.parametrize("echo", [{}, {"PLND_ENABLED": 0.0}])
+def test_a_parameter_the_vehicle_does_not_confirm_stops_before_the_mode(echo: dict[str, float]) -> None:
+    link = RecordingLink(echo)
+    with pytest.raises(CommandRejected, match="PLND_ENABLED"):
+        PrecisionLander(link, None, detector()).engage(ARDUPILOT)  # type: ignore[arg-type]
+    assert all(kind != "mode" for kind, _ in link.calls)
+
+
+@pytest.mark.parametrize(("dialect", "frame"), [(PX4, MAV_FRAME_LOCAL_NED), (ARDUPILOT, MAV_FRAME_BODY_FRD)])
+def test_a_seen_pad_sends_exactly_the_detections_landing_target(dialect, frame: int) -> None:  # type: ignore[no-untyped-def]
+    image = rendered(2.5)
+    link = RecordingLink()
+    lander = PrecisionLander(link, OneFrameCamera(image), detector())  # type: ignore[arg-type]
+    snap = snapshot((0.02, -0.01, 0.3), (1.0, 2.0, -4.0))
+    sent = lander.feed(snap, True, dialect)
+    pose = detector().detect(image)
+    assert pose is not None
+    expected = landing_target(pose, K, 5000, frame, snap.attitude_rad, snap.position_ned_m)
+    assert link.calls == [("target", expected)]
+    assert sent == expected
+    assert (lander.counts.frames, lander.counts.detections, lander.counts.sent) == (1, 1, 1)
+
+
+def test_an_unseen_pad_sends_nothing() -> None:
+    """Not position_valid 0: both autopilots would read its zero angles as a target dead below."""
+    link = RecordingLink()
+    lander = PrecisionLander(link, OneFrameCamera(rendered(2.5, CameraConfig())), detector())  # type: ignore[arg-type]
+    assert lander.feed(snapshot(), True, PX4) is None
+    assert link.calls == []
+    assert (lander.counts.frames, lander.counts.sent) == (1, 0)
+
+
+def test_non_finite_telemetry_sends_nothing() -> None:
+    link = RecordingLink()
+    lander = PrecisionLander(link, OneFrameCamera(rendered(2.5)), detector())  # type: ignore[arg-type]
+    assert lander.feed(snapshot((0.0, math.nan, 0.0)), True, PX4) is None
+    assert link.calls == []
+    assert lander.counts.refused == 1
+
+
+class Nobody(HumanInput):
+    def read(self, obs: Observation) -> HumanCommand:
+        return HumanCommand.neutral()
+
+
+class PlacingSimulator:
+    """A control surface for the fake vehicle: an episode starts 3 m above the pad."""
+
+    def __init__(self, fake: FakeVehicle, link: MavlinkLink) -> None:
+        self.fake, self.link = fake, link
+
+    def reset(self, seed: int | None = None) -> dict:
+        self.fake.place(0.0, 0.0, -3.0)
+        snap = self.link.state()
+        return {"time_boot_ms": snap.time_boot_ms if snap else 0}
+
+    def truth(self) -> dict:
+        return {"touchdown": None}
+
+    def close(self) -> None: ...
+
+
+@pytest.mark.realtime
+def test_over_sockets_landing_target_arrives_at_the_camera_rate_with_the_detectors_values() -> None:
+    """PX4-like fake: AUTO.PRECLAND asked by DO_SET_MODE (4, 9), then one LANDING_TARGET per
+    camera frame (rendered from the fake's telemetry) until the fake reports touchdown."""
+    cfg = CompanionConfig()
+    with FakeVehicle(stream_rate_hz=20.0) as fake, MavlinkLink(LinkConfig(connection=fake.connection_string)) as link:
+        link.connect(timeout_s=10.0)
+        world = WorldConfig(vehicle_height_m=0.0)  # the fake's ground is the roof
+        camera = RenderedCamera(link.state, MARKED, world, rate_hz=CAMERA_RATE_HZ)
+        camera.open()
+        try:
+            lander = PrecisionLander(link, camera, detector())
+            parts = EpisodeParts(
+                link=link, observer=Observer(None, PadDetector(), (320, 240)), mapper=CommandMapper(cfg.commands),
+                human=Nobody(), fence=Geofence(30.0, -1.0, 25.0), limiter=SetpointLimiter(cfg.commands, cfg.safety),
+                cfg=cfg.session.model_copy(update={"max_steps": 150}), lockstep=False,
+                simulator=PlacingSimulator(fake, link),  # type: ignore[arg-type]
+                lander=lander, landing=None,
+            )
+            started = time.monotonic()
+            record = EpisodeRunner(parts).run(0, Phase.AUTONOMOUS, 0)
+            wall_s = time.monotonic() - started
+        finally:
+            camera.close()
+        mode_requests = [m for m in fake.commands(mavlink.MAV_CMD_DO_SET_MODE) if (int(m.param2), int(m.param3)) == (4, 9)]
+        wire = fake.messages("LANDING_TARGET")
+    assert record.outcome == "touchdown", record
+    assert mode_requests, "AUTO.PRECLAND (main 4, sub 9) was not asked for"
+    assert len(wire) == lander.counts.sent >= 15
+    assert any("LANDING_TARGET" in note for note in record.notes)
+    stamps_ms = [m.time_usec / 1000 for m in wire]
+    assert stamps_ms == sorted(set(stamps_ms)), "one message per frame, in order"
+    rate_hz = (len(wire) - 1) / ((stamps_ms[-1] - stamps_ms[0]) / 1000)
+    assert 0.6 * CAMERA_RATE_HZ < rate_hz < 1.25 * CAMERA_RATE_HZ, (rate_hz, wall_s)
+    for msg, sent in zip(wire, lander.sent, strict=True):
+        assert (msg.frame, msg.type, msg.position_valid, msg.target_num) == (MAV_FRAME_LOCAL_NED, 2, 1, 0)
+        for name in ("angle_x", "angle_y", "distance", "size_x", "size_y", "x", "y", "z"):
+            assert getattr(msg, name) == pytest.approx(getattr(sent, name), rel=1e-5, abs=1e-5)
+        assert msg.time_usec == sent.time_usec
+        # the fake hovers level over the pad, which is at its local origin
+        assert math.hypot(msg.x, msg.y) < 0.05 and abs(msg.z) < 0.2
+        assert abs(msg.angle_x) < 0.05 and abs(msg.angle_y) < 0.05
+
+
+def test_the_precland_pilot_needs_the_board_on_the_pad(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from companion.app import RunOptions, precland_options
+    from companion.errors import ConfigError
+
+    with pytest.raises(ConfigError, match='pad_marker = "aruco"'):
+        precland_options(RunOptions(pilot="precland"))
+    opts = precland_options(RunOptions(pilot="precland", condition="col", config_path=CONFIGS / "precland.toml"))
+    assert (opts.condition, opts.learn, opts.record) == ("eval", False, False)
+    assert precland_options(RunOptions(pilot="expert")) == RunOptions(pilot="expert")
