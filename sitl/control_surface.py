@@ -46,6 +46,7 @@ def truth(v: SimVehicle) -> dict[str, Any]:
         "armed": v.armed,
         "mode": v.mode.px4_name,
         "touchdown": None if td is None else {**asdict(td), "time_boot_ms": int(round(td.time_s * 1000))},
+        "precision_landing": v.precision_landing_state(),
         **failsafe_times(v),
     }
 

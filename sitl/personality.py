@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.config import SitlConfig
 from sitl.control import Setpoint
 from sitl.dynamics import VehicleState
-from sitl.landing_target import LandingTargetRejected, TargetMeasurement
+from sitl.landing_target import TargetMeasurement
 from sitl.modes import Mode
 from sitl.offboard import (
     FRAME_BODY_NED,
@@ -324,17 +324,15 @@ class CopterVehicle(SimVehicle):
             return False
         estimator: ApTargetEstimator = self.target_estimator  # type: ignore[assignment]
         height = self.precland_pose().height_agl_m if self._rangefinder() else None
-        try:
-            estimator.measure(m, height)
-        except LandingTargetRejected as exc:
-            self.refuse_target(str(exc))
-            return False
-        finally:
-            self._say_all(estimator.events)
-        return True
+        used = estimator.measure(m, height)
+        self._say_all(estimator.events)
+        return used
 
     def precision_land(self) -> tuple[int, str]:
         return M.MAV_RESULT_UNSUPPORTED, ""  # ArduCopter has no such command: LAND does it
+
+    def precision_landing_state(self) -> str | None:
+        return self.plnd.state.value if self.copter_mode is CopterMode.LAND and self._plnd_on() else None
 
     def _say_all(self, texts: list[str]) -> None:
         for text in texts:

@@ -31,7 +31,6 @@ from enum import Enum
 from sitl.landing_target import (
     FRAME_BODY_FRD,
     AxisFilter,
-    LandingTargetRejected,
     TargetEstimate,
     TargetMeasurement,
     Vec3,
@@ -87,16 +86,17 @@ class ApTargetEstimator:
         older = [p for p in self._history if p.time_s <= t_s - lag]
         return older[-1] if older else (self._history[0] if self._history else None)
 
-    def measure(self, m: TargetMeasurement, height_agl_m: float | None) -> None:
-        """One message; raises LandingTargetRejected for what ArduPilot does not take."""
+    def measure(self, m: TargetMeasurement, height_agl_m: float | None) -> bool:
+        """One message; False when ArduPilot drops it (as it does: silently, but for the first
+        message in a wrong frame)."""
         if m.position_valid:
             if m.frame != FRAME_BODY_FRD:
                 if not self._wrong_frame_said:
                     self._wrong_frame_said = True
                     self.events.append("Plnd: Frame not supported ")
-                raise LandingTargetRejected(f"LANDING_TARGET frame {m.frame}: ArduPilot takes only BODY_FRD (12)")
+                return False
             if m.distance_m <= 0:
-                raise LandingTargetRejected("LANDING_TARGET refused: BODY_FRD needs distance > 0")
+                return False
             los = (m.x_m / m.distance_m, m.y_m / m.distance_m, m.z_m / m.distance_m)
         else:
             ray = ray_from_angles(m.angle_x_rad, m.angle_y_rad)
@@ -104,7 +104,7 @@ class ApTargetEstimator:
             los = (ray[0] / norm, ray[1] / norm, ray[2] / norm)
         delayed = self._delayed(m.time_s)
         if delayed is None or los[2] <= 0:
-            return  # no attitude yet, or a target above the camera: not used
+            return False  # no attitude yet, or a target above the camera: not used
         ned = body_to_ned(los, delayed.attitude_rad)
         if m.distance_m > 0:
             rel = (ned[0] * m.distance_m, ned[1] * m.distance_m, ned[2] * m.distance_m)
@@ -112,8 +112,9 @@ class ApTargetEstimator:
             scale = height_agl_m / ned[2]
             rel = (ned[0] * scale, ned[1] * scale, height_agl_m)
         else:
-            return  # neither a distance nor a rangefinder: ArduPilot cannot place it
+            return False  # neither a distance nor a rangefinder: ArduPilot cannot place it
         self._meas = (rel, m.time_s)
+        return True
 
     def update(self, pose: VehiclePose) -> None:
         """One cycle: history, prediction, the waiting measurement, init and loss checks."""

@@ -14,14 +14,18 @@ the vehicle flies. After PX4's documentation ("Precision Landing") and its sourc
   feed the target's apparent velocity to its own position estimator as the vehicle's; the SITL
   has no estimator of that kind to bias, so here it means what it assumes: the target does
   not move (relative velocity = minus the vehicle's), and a moving pad shows as lag;
-- the phases: start -> horizontal approach (at the altitude it started, to the target's place,
-  speed and acceleration limited) -> descent above the target once within PLD_HACC_RAD on both
-  axes (after 2 s near it) -> final approach below PLD_FAPPR_ALT over the target, where losing
-  it no longer matters. Target not seen for PLD_BTOUT: back to start (hold), counted; at the
-  start point without the target for 2 s: search (climb to PLD_SRCH_ALT above the local
-  origin) for PLD_SRCH_TOUT; more than PLD_MAX_SRCH starts, a search timeout or 10 s of
-  horizontal approach: fallback, a normal landing where it is. Opportunistic (NAV_LAND in a
-  mission, param2 = 1) falls back at once when no target is seen at the start.
+- the phases (PX4 main, 2026: the navigator's precland, whose console log says "Precland:
+  switching to ..."; none of it is sent as STATUSTEXT): start -> horizontal approach (at the
+  altitude it started, to the target's place, speed and acceleration limited) -> descent above
+  the target once within PLD_HACC_RAD on both axes (2 s after it first was) -> final approach
+  below PLD_FAPPR_ALT over the target, where losing it no longer matters. There is no time
+  limit on the approach: a target it cannot get within PLD_HACC_RAD of (a pad driving away
+  faster than the position loop follows) keeps it approaching at altitude. Target not seen for
+  PLD_BTOUT: stop at the current altitude over its last place, back to start (counted); at the
+  start point without the target for 1 s: search (climb to PLD_SRCH_ALT above the local origin)
+  for PLD_SRCH_TOUT; more than PLD_MAX_SRCH starts or a search timeout: fallback, a normal
+  landing at the target's last place. Opportunistic (NAV_LAND in a mission, param2 = 1) falls
+  back at once when no target is seen at the start.
 """
 
 from __future__ import annotations
@@ -38,16 +42,15 @@ from sitl.landing_target import (
     TargetEstimate,
     TargetMeasurement,
     Vec3,
-    ray_from_angles,
     relative_from_ray,
 )
 
 ParamGetter = Callable[[str], float]
 ESTIMATOR_TIMEOUT_S = 2.0  # PX4's landing_target_estimator: no measurement this long -> reset
 GATE_NIS = 9.0  # a 3-sigma innovation gate
-REACHED_HOLD_S = 2.0  # near the target (or the start point) this long before the next phase
+DESCEND_AFTER_S = 2.0  # within PLD_HACC_RAD (first) this long before descending
+START_SEARCH_AFTER_S = 1.0  # at the start point without a target this long: search
 SEARCH_SETTLE_S = 1.0  # target seen while searching: settle this long before approaching
-HORIZONTAL_TIMEOUT_S = 10.0  # PX4's STATE_TIMEOUT for the horizontal approach
 ACCEPTANCE_RADIUS_M = 2.0  # the navigator's acceptance radius for "at the start point"
 FINAL_LOST_S = 0.5  # close to the ground a target older than this counts as lost
 
@@ -57,9 +60,10 @@ PX4_PRECLAND_DEFAULTS: dict[str, float] = {  # PX4's precland_params.c
 }
 PX4_LTEST_DEFAULTS: dict[str, float] = {  # PX4's landing_target_estimator_params.c
     "LTEST_MODE": 0, "LTEST_ACC_UNC": 10.0, "LTEST_MEAS_UNC": 0.005, "LTEST_POS_UNC_IN": 0.1,
-    "LTEST_VEL_UNC_IN": 0.1, "LTEST_SCALE_X": 1.0, "LTEST_SCALE_Y": 1.0,
+    "LTEST_VEL_UNC_IN": 0.1, "LTEST_SCALE_X": 1.0, "LTEST_SCALE_Y": 1.0, "LTEST_SENS_ROT": 2,
+    "LTEST_SENS_POS_X": 0.0, "LTEST_SENS_POS_Y": 0.0, "LTEST_SENS_POS_Z": 0.0,
 }
-INT_PARAMS = frozenset({"PLD_MAX_SRCH", "LTEST_MODE"})
+INT_PARAMS = frozenset({"PLD_MAX_SRCH", "LTEST_MODE", "LTEST_SENS_ROT"})
 
 
 @dataclass(frozen=True)
@@ -97,11 +101,18 @@ class Px4TargetEstimator:
                 raise LandingTargetRejected(f"Landing target: coordinate frame {m.frame} unsupported")
             self._publish(TargetEstimate(m.time_s, m.x_m, m.y_m, m.z_m))
             return
-        ray = ray_from_angles(m.angle_x_rad * self._param("LTEST_SCALE_X"), m.angle_y_rad * self._param("LTEST_SCALE_Y"),
-                              tangent=False)
-        rel = relative_from_ray(ray, pose.attitude_rad, pose.height_agl_m)
+        rel = relative_from_ray(self._body_ray(m), pose.attitude_rad, pose.height_agl_m)
         if rel is not None and pose.height_agl_m > 0:
             self._fuse(rel, pose, m.time_s)
+
+    def _body_ray(self, m: TargetMeasurement) -> Vec3:
+        """The sensor's ray (angles taken as tangents, scaled by LTEST_SCALE_X/Y) turned into the
+        body frame by LTEST_SENS_ROT (yaw in 45 deg steps; the default 2, yaw 90, is a camera
+        whose image x points right: :func:`ray_from_angles` with tangent=False)."""
+        sx, sy = m.angle_x_rad * self._param("LTEST_SCALE_X"), m.angle_y_rad * self._param("LTEST_SCALE_Y")
+        yaw = math.radians(45.0 * int(self._param("LTEST_SENS_ROT")))
+        c, s = math.cos(yaw), math.sin(yaw)
+        return (c * sx - s * sy, s * sx + c * sy, 1.0)
 
     def predict(self, pose: VehiclePose) -> None:
         """Advance the filter to ``pose.time_s`` with the vehicle's acceleration (from its velocity)."""
@@ -220,7 +231,10 @@ class Px4Limits:
 
 
 class Px4PrecLand:
-    """The precision landing state machine (AUTO.PRECLAND, or a mission's NAV_LAND with param2)."""
+    """The precision landing state machine (AUTO.PRECLAND, or a mission's NAV_LAND with param2).
+
+    It steers to the "approximate landing position": where it was when activated, then the
+    (slewed) target while it is seen; start, search, lost and fallback all fly to that point."""
 
     def __init__(self, params: ParamGetter, limits: Px4Limits = Px4Limits()) -> None:
         self._param = params
@@ -228,12 +242,12 @@ class Px4PrecLand:
         self.state = Px4State.DONE
         self.mode = PrecLandMode.REQUIRED
         self.search_count = 0
-        self.events: list[str] = []  # what PX4 would say, for STATUSTEXT
+        self.events: list[str] = []  # what PX4 logs on its console (not sent as STATUSTEXT)
         self._state_since_s = 0.0
         self._reached_s: float | None = None
         self._acquired_s: float | None = None
-        self._point = (0.0, 0.0)  # the start point (where it holds) / the fallback landing point
-        self._hold_down_m = 0.0
+        self._landing_ne = (0.0, 0.0)  # PX4's _approximate_landing_pos
+        self._down_m: float | None = None  # the altitude held (None: where it is)
         self._approach_down_m = 0.0
         self._slew = _Slew(0.0, 0.0)
         self._last_target: TargetEstimate | None = None
@@ -241,24 +255,23 @@ class Px4PrecLand:
 
     # ----- transitions ---------------------------------------------------------------------
     def start(self, pose: VehiclePose, mode: PrecLandMode = PrecLandMode.REQUIRED) -> None:
-        """Activation: hold where it is and look for the target."""
+        """Activation: from where it is, look for the target."""
         self.mode = mode
         self.search_count = 0
         self._last_target = None
-        self._hold_here(pose)
+        self._landing_ne = (pose.position_ned_m[0], pose.position_ned_m[1])
+        self._down_m = pose.position_ned_m[2]
         self._to_start(pose)
         self._last_time_s = pose.time_s
 
     def _enter(self, state: Px4State, t_s: float) -> None:
+        if state is not Px4State.START and state is not self.state:
+            self.events.append(f"Precland: switching to {state.value}")
         self.state = state
         self._state_since_s = t_s
 
-    def _hold_here(self, pose: VehiclePose) -> None:
-        self._point = (pose.position_ned_m[0], pose.position_ned_m[1])
-        self._hold_down_m = pose.position_ned_m[2]
-
     def _to_start(self, pose: VehiclePose) -> None:
-        """Back to the start point (counted); over PLD_MAX_SRCH of them: fallback."""
+        """Back to the start (counted); over PLD_MAX_SRCH of them: fallback."""
         if self.search_count > int(self._param("PLD_MAX_SRCH")):
             self._to_fallback(pose)
             return
@@ -275,18 +288,20 @@ class Px4PrecLand:
 
     def _to_search(self, pose: VehiclePose) -> None:
         self.events.append("Climbing to search altitude.")
-        self._hold_down_m = -self._param("PLD_SRCH_ALT")  # above the local origin (PX4: ref_alt + PLD_SRCH_ALT)
         self._acquired_s = None
+        self._down_m = self._search_down()
         self._enter(Px4State.SEARCH, pose.time_s)
 
+    def _search_down(self) -> float:
+        return -self._param("PLD_SRCH_ALT")  # above the local origin (PX4: ref_alt + PLD_SRCH_ALT)
+
     def _to_fallback(self, pose: VehiclePose) -> None:
-        self.events.append("Falling back to normal land.")
-        self._point = (pose.position_ned_m[0], pose.position_ned_m[1])
         self._enter(Px4State.FALLBACK, pose.time_s)
 
-    def _lost(self, pose: VehiclePose, phase: str) -> None:
-        self.events.append(f"Lost landing target while landing ({phase}).")
-        self._hold_here(pose)
+    def _lost(self, pose: VehiclePose) -> None:
+        """Stop at the current altitude over the last place of the target, back to start."""
+        self.events.append(f"Lost landing target while landing, state: {self.state.value}")
+        self._down_m = pose.position_ned_m[2]
         self._to_start(pose)
 
     def landed(self, t_s: float) -> None:
@@ -331,27 +346,23 @@ class Px4PrecLand:
             self._to_fallback(pose)
             return
         n, e, _ = pose.position_ned_m
-        if math.hypot(n - self._point[0], e - self._point[1]) < ACCEPTANCE_RADIUS_M:
+        if math.hypot(n - self._landing_ne[0], e - self._landing_ne[1]) < ACCEPTANCE_RADIUS_M:
             self._reached_s = pose.time_s if self._reached_s is None else self._reached_s
             if self._param("PLD_SRCH_TOUT") <= 0:
                 self._to_fallback(pose)
-            elif pose.time_s - self._reached_s > REACHED_HOLD_S:
+            elif pose.time_s - self._reached_s > START_SEARCH_AFTER_S:
                 self._to_search(pose)
 
     def _run_approach(self, pose: VehiclePose, target: TargetEstimate | None, updated: bool) -> None:
         assert target is not None
         near_last = self._within(target, pose)
         if near_last and not self._valid(target, pose.time_s):
-            self._lost(pose, "horizontal approach")  # at the last place it was seen, and it is not there
+            self._lost(pose)  # at the last place it was seen, and it is not there
             return
         if updated and near_last:
             self._reached_s = pose.time_s if self._reached_s is None else self._reached_s
-            if pose.time_s - self._reached_s > REACHED_HOLD_S:
+            if pose.time_s - self._reached_s > DESCEND_AFTER_S:
                 self._enter(Px4State.DESCEND_ABOVE_TARGET, pose.time_s)
-                return
-        if pose.time_s - self._state_since_s > HORIZONTAL_TIMEOUT_S:
-            self.events.append("Precision landing took too long during horizontal approach phase.")
-            self._to_fallback(pose)
 
     def _run_descend(self, pose: VehiclePose, target: TargetEstimate | None, updated: bool) -> None:
         final = self._final(target, pose)
@@ -364,13 +375,15 @@ class Px4PrecLand:
         if final:
             self._enter(Px4State.FINAL_APPROACH, pose.time_s)
         else:
-            self._lost(pose, "descending")
+            self._lost(pose)
 
     def _run_search(self, pose: VehiclePose, target: TargetEstimate | None, updated: bool) -> None:
         seen = updated and self._valid(target, pose.time_s)
-        if seen and self._acquired_s is None:
+        if not seen:
+            self._acquired_s, self._down_m = None, self._search_down()
+        elif self._acquired_s is None:
             self._acquired_s = pose.time_s  # stop climbing, with a margin of 1 m
-            self._hold_down_m = max(self._hold_down_m, pose.position_ned_m[2] - 1.0)
+            self._down_m = max(self._search_down(), pose.position_ned_m[2] - 1.0)
         if self._acquired_s is not None and pose.time_s - self._acquired_s > SEARCH_SETTLE_S and seen:
             self._to_approach(pose)
             return
@@ -382,11 +395,12 @@ class Px4PrecLand:
     def _guidance(self, pose: VehiclePose, dt_s: float) -> Guidance:
         state, target = self.state, self._last_target
         if state is Px4State.HORIZONTAL_APPROACH and target is not None:
-            n, e = self._slew.step(target.north_m, target.east_m, dt_s, self.limits.cruise_m_s, self.limits.acc_m_s2)
-            return Guidance(n, e, self._approach_down_m, state.value)
-        if state in (Px4State.DESCEND_ABOVE_TARGET, Px4State.FINAL_APPROACH) and target is not None:
-            return Guidance(target.north_m, target.east_m, None, state.value)
-        if state in (Px4State.FALLBACK, Px4State.DONE):
-            return Guidance(self._point[0], self._point[1], None, state.value)
-        return Guidance(self._point[0], self._point[1], self._hold_down_m, state.value)
-
+            self._landing_ne = self._slew.step(target.north_m, target.east_m, dt_s, self.limits.cruise_m_s,
+                                               self.limits.acc_m_s2)
+            return Guidance(*self._landing_ne, self._approach_down_m, state.value)
+        if state is Px4State.DESCEND_ABOVE_TARGET and target is not None:
+            self._landing_ne = (target.north_m, target.east_m)
+        if state in (Px4State.DESCEND_ABOVE_TARGET, Px4State.FINAL_APPROACH, Px4State.FALLBACK, Px4State.DONE):
+            return Guidance(*self._landing_ne, None, state.value)
+        down = pose.position_ned_m[2] if self._down_m is None else self._down_m
+        return Guidance(*self._landing_ne, down, state.value)

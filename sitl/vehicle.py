@@ -424,6 +424,11 @@ class SimVehicle:
             return mavlink.MAV_RESULT_DENIED, "Precision landing denied: landed"
         return self.request_mode(Mode.AUTO_PRECLAND)
 
+    def precision_landing_state(self) -> str | None:
+        """Personality: the precision landing's phase while one runs (ground truth for tests and
+        experiments: PX4 logs it on its console only)."""
+        return self.precland.state.value if self.mode is Mode.AUTO_PRECLAND else None
+
     def _run_precland(self) -> None:
         """The estimator runs while it has a target; the state machine only in AUTO.PRECLAND.
         (Nothing at all otherwise: this is in every FDM step of every experiment.)"""
@@ -436,9 +441,7 @@ class SimVehicle:
         if self.landed and self.touchdown is not None:
             self.precland.landed(pose.time_s)
         guidance = self.precland.update(pose, *self.target_estimator.take())
-        for text in self.precland.events:
-            self.say(mavlink.MAV_SEVERITY_INFO, text)
-        self.precland.events.clear()
+        self.precland.events.clear()  # PX4 logs these on its console only, not as STATUSTEXT
         self._sp = self._guidance_setpoint(guidance)
 
     def _guidance_setpoint(self, g: Guidance) -> Setpoint:

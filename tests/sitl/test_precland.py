@@ -104,6 +104,13 @@ def test_px4_estimator_follows_a_moving_pad_in_moving_mode_and_lags_in_stationar
     assert moving < 0.1 and stationary > 0.3
 
 
+def test_px4_sensor_rotation_turns_the_angles_into_the_body_frame() -> None:
+    est = Px4TargetEstimator(px4_params().__getitem__)
+    assert est._body_ray(TargetMeasurement(0.0, 0.1, 0.2, 0.0, FRAME_BODY_FRD, False)) == pytest.approx((-0.2, 0.1, 1.0))
+    est = Px4TargetEstimator(px4_params(LTEST_SENS_ROT=0).__getitem__)
+    assert est._body_ray(TargetMeasurement(0.0, 0.1, 0.2, 0.0, FRAME_BODY_FRD, False)) == pytest.approx((0.1, 0.2, 1.0))
+
+
 def test_px4_estimator_resets_after_two_seconds_without_measurements() -> None:
     est = Px4TargetEstimator(px4_params().__getitem__)
     est.predict(pose(0.0))
@@ -153,12 +160,11 @@ def test_px4_approaches_at_altitude_then_descends_only_within_pld_hacc_rad() -> 
 
 
 def test_px4_never_descends_while_the_target_stays_beyond_the_acceptance_radius() -> None:
+    """A pad it lags by more than PLD_HACC_RAD: PX4 (main, 2026) has no time limit on the
+    approach (the real one spent 29 s there, wandering 0.3 m around a fixed point)."""
     run = Px4Run(PLD_HACC_RAD=0.2)
-    run.run(9.0, (4.0, 0.0), follow=False)  # the vehicle cannot get there (a moving pad it lags)
+    run.run(60.0, (4.0, 0.0), follow=False)
     assert run.pl.state is Px4State.HORIZONTAL_APPROACH and run.d == -5.0
-    run.run(1.5, (4.0, 0.0), follow=False)  # 10 s in the approach: fall back to a normal landing
-    assert run.pl.state is Px4State.FALLBACK
-    assert any("took too long" in e for e in run.pl.events)
 
 
 def test_px4_searches_by_climbing_when_the_target_is_lost_then_falls_back() -> None:
@@ -167,7 +173,7 @@ def test_px4_searches_by_climbing_when_the_target_is_lost_then_falls_back() -> N
     assert run.pl.state is Px4State.DESCEND_ABOVE_TARGET or run.pl.state is Px4State.HORIZONTAL_APPROACH
     run.run(1.5, None)  # lost for longer than PLD_BTOUT: back to start, holding
     assert Px4State.START in run.states[2:]
-    run.run(2.5, None)  # 2 s at the start point without the target: search
+    run.run(1.5, None)  # 1 s at the start point without the target: search
     assert run.pl.state is Px4State.SEARCH
     lowest = run.d
     for _ in range(60):
@@ -176,6 +182,8 @@ def test_px4_searches_by_climbing_when_the_target_is_lost_then_falls_back() -> N
     assert lowest == pytest.approx(-8.0)  # climbed to PLD_SRCH_ALT
     run.run(2.0, None)
     assert run.pl.state is Px4State.FALLBACK and "Search timed out" in run.pl.events
+    run.run(0.5, None)
+    assert (run.n, run.e) == pytest.approx((1.0, 0.0), abs=0.05)  # lands where the target was last seen
 
 
 def test_px4_search_finds_the_target_again_and_approaches() -> None:
@@ -222,11 +230,11 @@ def test_ardupilot_takes_body_frd_and_angles_but_not_local_ned() -> None:
     est.update(pose(0.05))
     got = est.estimate(pose(0.05))
     assert got is not None and (got.north_m, got.east_m) == pytest.approx((3.0, 0.0))
-    with pytest.raises(LandingTargetRejected):
-        est.measure(TargetMeasurement(0.1, 0, 0, 5.0, FRAME_LOCAL_NED, True, 3.0, 0.0, 4.0), None)
+    for _ in range(3):  # dropped, said once
+        assert not est.measure(TargetMeasurement(0.1, 0, 0, 5.0, FRAME_LOCAL_NED, True, 3.0, 0.0, 4.0), None)
     assert est.events.count("Plnd: Frame not supported ") == 1
-    est.measure(TargetMeasurement(0.1, 0.0, 0.0, 0.0, FRAME_BODY_FRD, False), None)  # no distance, no rangefinder
-    assert est._meas is None
+    assert not est.measure(TargetMeasurement(0.1, 0.0, 0.0, 0.0, FRAME_BODY_FRD, False), None)  # no distance, no rangefinder
+    assert est.measure(TargetMeasurement(0.1, 0.0, 0.0, 0.0, FRAME_BODY_FRD, False), 4.0)  # a rangefinder's height
 
 
 def test_ardupilot_kalman_filter_needs_two_seconds_of_measurements_before_acquiring() -> None:
