@@ -41,12 +41,13 @@ Touchdown is the vehicle's own: EXTENDED_SYS_STATE landed_state ON_GROUND.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from companion.vision.aruco import PadPose
 from sitl.camera import CAM_FROM_BODY, rotation_ned_from_body
 
 MAV_FRAME_LOCAL_NED = 1
@@ -54,6 +55,20 @@ MAV_FRAME_BODY_FRD = 12
 LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
 FRAMES = (MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD)
 UINT64_MAX = 2**64 - 1
+
+
+class TargetPose(Protocol):
+    """What a detector tells of the pad (companion.vision.aruco.PadPose): its centre and
+    orientation in OpenCV's camera frame (x right, y down, z along the axis), its corners' pixels."""
+
+    @property
+    def position_cam_m(self) -> tuple[float, float, float]: ...
+
+    @property
+    def rotation(self) -> np.ndarray: ...
+
+    @property
+    def corners_px(self) -> Sequence[tuple[float, float]]: ...
 
 
 @dataclass(frozen=True)
@@ -128,7 +143,7 @@ def angular_size(corners_px: ArrayLike, camera_matrix: ArrayLike) -> tuple[float
     return float(ax.max() - ax.min()), float(ay.max() - ay.min())
 
 
-def landing_target(pose: PadPose, camera_matrix: ArrayLike, time_boot_ms: int, frame: int,
+def landing_target(pose: TargetPose, camera_matrix: ArrayLike, time_boot_ms: int, frame: int,
                    attitude_rad: ArrayLike = (0.0, 0.0, 0.0),
                    position_ned_m: ArrayLike = (0.0, 0.0, 0.0), target_num: int = 0) -> LandingTarget:
     """The LANDING_TARGET for one detection (see the module doc for each field).
