@@ -118,16 +118,21 @@ def start_sitl(
     seed: int | None = None,
     camera: bool = True,
     extra_args: list[str] | None = None,
-    timeout_s: float = 30.0,
-    nice: int = 10,
+    timeout_s: float = 120.0,
+    nice: int | None = None,
 ) -> SitlProcess:
     """Start the SITL in another process on free loopback ports, sending MAVLink to
     ``udp_remote_port``; returns once it reports READY.
 
-    The SITL runs ``nice`` steps below the companion: on one machine it would otherwise take the
-    companion's core while computing the next frame (a real autopilot has its own processor);
-    in lockstep it waits for the companion anyway, so this costs no throughput. It also stops
-    when the thread that started it ends (Linux): start it from a thread that lives as long as it."""
+    In lockstep the SITL runs ``nice`` (default 10) steps below the companion: on one machine it
+    would otherwise take the companion's core while computing the next frame (a real autopilot
+    has its own processor), and it waits for the companion anyway, so this costs no throughput.
+    In real time it keeps the companion's priority (default 0): it has a wall clock to keep, and
+    behind a busy machine's other work it fell behind it. ``timeout_s`` is only an upper bound
+    (a loaded machine took over 30 s to import and start it). It also stops when the thread
+    that started it ends (Linux): start it from a thread that lives as long as it."""
+    if nice is None:
+        nice = 10 if clock == "lockstep" else 0
     args = [sys.executable, "-m", "sitl", "--clock", clock, "--udp", f"0:{udp_remote_port}", "--tcp", "-1",
             "--camera-port", "0", "--control-port", "0", "--exit-with-parent"]
     if config is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import time
@@ -63,3 +64,45 @@ def _torch_single_thread() -> None:
     except ImportError:  # pragma: no cover - torch is a core dependency
         return
     torch.set_num_threads(1)
+
+
+REALTIME_NICE = -10
+STARTING_NICE = os.getpriority(os.PRIO_PROCESS, 0)  # what the shell gave pytest
+"""Niceness of a test that flies in real time (and of every process it starts). A real-time
+SITL, PX4 SIH, ArduCopter or the console fall behind their wall clock when a loaded machine
+(load ~10 on 2 cores) shares the CPU evenly; a flight stack is given priority on a real
+companion computer too. Lockstep and unit tests keep the default priority."""
+
+
+@contextlib.contextmanager
+def _niceness(nice: int) -> Iterator[None]:
+    """This process (and what it starts meanwhile) at ``nice``, if it may; back afterwards."""
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except PermissionError:  # not root: the default priority, as before
+        pass
+    try:
+        yield
+    finally:
+        with contextlib.suppress(PermissionError):
+            os.setpriority(os.PRIO_PROCESS, 0, before)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _realtime_module(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Modules marked ``realtime`` (their module-scoped vehicles start inside this)."""
+    if request.node.get_closest_marker("realtime") is None:
+        yield
+        return
+    with _niceness(REALTIME_NICE):
+        yield
+
+
+@pytest.fixture(autouse=True)
+def _realtime_test(request: pytest.FixtureRequest) -> Iterator[None]:
+    if request.node.get_closest_marker("realtime") is None:
+        yield
+        return
+    with _niceness(REALTIME_NICE):
+        yield

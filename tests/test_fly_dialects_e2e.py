@@ -26,7 +26,7 @@ from tests.conftest import free_port
 from tests.test_fly_e2e import col_command, landing_report, read_records
 
 # real time on a shared machine: a loaded one (load 30 on 2 cores) took 2.5x as long
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(1800)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(1800)]
 SITL_READY_S = 120.0
 
 SHORT = """

@@ -11,6 +11,8 @@ from companion import simulator
 from companion.errors import SimulatorError
 from tests.conftest import free_port
 
+pytestmark = pytest.mark.realtime  # flies in real time: a higher priority where allowed
+
 
 @pytest.fixture()
 def started(monkeypatch: pytest.MonkeyPatch) -> list[subprocess.Popen[bytes]]:

@@ -64,9 +64,9 @@ class ColRun:
         for line in self.proc.stderr:
             self.stderr.append((time.monotonic(), line.rstrip()))
 
-    def first(self, text: str) -> float | None:
-        """When a stderr line containing ``text`` arrived."""
-        return next((t for t, line in list(self.stderr) if text in line), None)
+    def first(self, text: str, after: float = float("-inf")) -> float | None:
+        """When the first stderr line containing ``text`` arrived (at or after ``after``)."""
+        return next((t for t, line in list(self.stderr) if text in line and t >= after), None)
 
     def stop(self) -> None:
         if self.proc.poll() is None:

@@ -39,7 +39,7 @@ navigator.getGamepads = () => [{
 }];
 """
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(900)]
 SHOTS = os.environ.get("COL_CONSOLE_SHOTS")  # a folder: keep the screenshots (docs/images)
 
 

@@ -21,7 +21,7 @@ from companion.simulator import SimulatorClient
 from tests.console import stop
 
 REPO = Path(__file__).resolve().parents[2]
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(240)]
 
 
 def pad_state(pitch: float, trigger: bool) -> dict[str, object]:
@@ -77,7 +77,7 @@ async def _scenario(url: str, run_dir: Path) -> None:  # noqa: C901 - one story,
         await page.until(lambda: page.hello is not None, 10)
         await page.ws.send_str(json.dumps({"type": "role", "want": "pilot"}))
         await page.ws.send_str(json.dumps({"type": "command", "name": "start", "condition": "int", "episodes": 1}))
-        await page.until(lambda: len(page.steps) >= 5 and page.status and page.status["simulator"], 90)
+        await page.until(lambda: len(page.steps) >= 5 and page.status and page.status["simulator"], 300)  # an upper bound: the SITL starts slowly at load ~10
         host, port = page.status["simulator"].split(":")
         page.state = pad_state(0.8, True)  # take over, fly forward
         await page.until(lambda: page.steps[-1]["who"] == "person", 10)

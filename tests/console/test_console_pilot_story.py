@@ -28,7 +28,7 @@ from tests.console.test_console_browser import (
     shot,
 )
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(1500)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(1500)]
 PITCH = 0.3  # the good stick before the pad breaks: every recorded row must carry exactly it
 
 

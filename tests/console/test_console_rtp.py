@@ -19,7 +19,7 @@ from tests.conftest import free_port
 from tests.console.test_console_browser import REPO
 from tests.sitl.test_rtp_video import receive
 
-pytestmark = [pytest.mark.timeout(120)]
+pytestmark = [pytest.mark.realtime, pytest.mark.timeout(120)]
 av = pytest.importorskip("av")
 
 

@@ -39,7 +39,7 @@ from companion.experiment.runner import run_grid
 
 # one worker runs these in turn: each checks that no Ray process or session folder is left,
 # which another worker's Ray instance (started at the same time) would break
-pytestmark = pytest.mark.xdist_group("ray")
+pytestmark = [pytest.mark.xdist_group("ray"), pytest.mark.timeout(900)]  # upper bound at load ~10
 REPO = Path(__file__).resolve().parents[2]
 DRIVER_PID = os.getpid()
 """This process: the driver of the Ray instances the tests start (captured by value by Ray)."""

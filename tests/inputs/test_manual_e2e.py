@@ -28,7 +28,7 @@ from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from tests.conftest import free_port
 from tests.mav_client import MavTestClient
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 OFFBOARD = 6 << 16
 PITCH, THROTTLE = 0.5, 0.5  # the person's sticks while the button is held

@@ -18,7 +18,7 @@ from companion.link.mavlink_link import MavlinkLink
 from companion.simulator import start_sitl
 from tests.conftest import free_port
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]  # real time, on a shared machine
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(600)]  # real time, on a shared machine
 SETTLE_S = 3.0
 
 

@@ -25,6 +25,8 @@ from companion.testing import FakeVehicle
 from companion.testing.link_contract import run_link_contract
 from tests.conftest import wait_until as _until
 
+pytestmark = pytest.mark.realtime  # flies in real time: a higher priority where allowed
+
 
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

@@ -46,6 +46,7 @@ def _recorded_environ() -> dict[str, str] | None:
                                                                     ne.cpu_flags())),
                     reason="this CPU cannot run the kernels the committed grid was made with")
 @pytest.mark.xdist_group("cpu-heavy")  # not beside the real-time autopilot tests
+@pytest.mark.timeout(1500)  # ~146 s on an idle machine, over 300 s at load ~11
 def test_a_committed_trial_reruns_byte_for_byte() -> None:
     """``--verify`` reruns the trial in the environment the folder recorded, whatever the shell
     asks for (here OpenBLAS's SSE3 kernels, which neither the grid nor the profile uses)."""

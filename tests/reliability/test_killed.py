@@ -64,11 +64,13 @@ def test_sigkill_the_sitl_mid_episode(tmp_path: Path) -> None:
         code = col.proc.wait(120)
     finally:
         col.stop()
-    said = col.first("link lost")
-    # said, after the kill: how soon is the link's logic on its own clock
+    # said after the kill (at load ~11 a starved SITL was also silent for 1.5 s earlier, and the
+    # link said so then too: that earlier loss is not the one this test is about). How soon is
+    # the link's logic on its own clock
     # (tests/link/test_link.py::test_the_link_is_lost_after_link_lost_s_of_silence_on_its_clock),
     # not a wall-clock bound that a loaded machine breaks
-    assert said is not None and said >= killed_at
+    said = col.first("link lost", after=killed_at)
+    assert said is not None
     assert code not in (0, None)
     assert any("SITL started for this run was killed" in line for _, line in col.stderr)
     assert samples_lost(run_dir / "human.csv") == 0 and (run_dir / "episodes.jsonl").exists()

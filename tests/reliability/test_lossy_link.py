@@ -18,6 +18,8 @@ from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.testing.lossy_proxy import LinkFaults, LossyProxy
 from tests.conftest import free_port, wait_until
 
+pytestmark = pytest.mark.realtime  # flies in real time: a higher priority where allowed
+
 COM_OF_LOSS_T = 0.5  # the SITL's default (sitl.autopilot.offboard_loss_hold_s)
 
 

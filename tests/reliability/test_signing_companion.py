@@ -17,7 +17,7 @@ from companion.simulator import running_sitl
 from tests.conftest import free_port
 from tests.test_fly_e2e import col_command
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 KEY_HEX = "5a" * 32
 OTHER_HEX = "a5" * 32

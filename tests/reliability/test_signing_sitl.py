@@ -16,7 +16,7 @@ from colcommon.signing import make_signing
 from companion.simulator import SitlProcess, start_sitl
 from tests.mav_client import MavTestClient, nan7
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 KEY = bytes(range(1, 33))
 OFFBOARD = 6 << 16

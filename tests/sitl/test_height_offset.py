@@ -26,6 +26,8 @@ from sitl.telemetry import (
 from sitl.vehicle import SimVehicle
 from tests.mav_client import MavTestClient
 
+pytestmark = pytest.mark.realtime  # flies in real time: a higher priority where allowed
+
 POSITION_ONLY = 0b110111111000
 F32 = 1e-6  # MAVLink carries float32
 

@@ -18,7 +18,7 @@ from sitl.rtp import parse_destination, sdp_for
 from tests.conftest import free_port
 from tests.mav_client import MavTestClient
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(120)]
 av = pytest.importorskip("av")
 
 

@@ -17,7 +17,7 @@ from companion.errors import SimulatorError
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from tests.mav_client import MavTestClient
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 SPEED = 2.0
 GCS_SYSTEM, GCS_COMPONENT = 255, 190  # as QGroundControl

@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as M
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from tests.mav_client import MavTestClient, nan7
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 OFFBOARD = 6 << 16
 LOITER = (4 << 16) | (3 << 24)

@@ -21,7 +21,7 @@ from tests.conftest import free_port
 
 pytest.importorskip("mavsdk")
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 SPEED = 2.0  # sim s per wall s: MAVSDK's wall-clock timeouts (3 s heartbeat) stay comfortable
 T = TypeVar("T")
