@@ -159,6 +159,8 @@ class MessageHandler:
             return (*v.takeoff(p[6]), [])
         if cmd == M.MAV_CMD_NAV_LAND:
             return (*v.land(), [])
+        if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+            return (*v.reboot(p[0]), [])
         if cmd == NAV_PRECLAND:
             return (*v.precision_land(), [])
         if cmd == M.MAV_CMD_DO_SET_MODE:

@@ -309,11 +309,27 @@ class CopterVehicle(SimVehicle):
 
     # ----- precision landing (AC_PrecLand) -------------------------------------------------
     def _start_precland(self) -> None:
+        """At boot: ArduCopter makes its precision landing backend from PLND_TYPE now, once (set
+        later, it takes effect at the next reboot; PLND_ENABLED is read live)."""
         self.target_estimator = ApTargetEstimator(self._param)  # type: ignore[assignment]
         self.plnd = ApPrecLand(self._param, rangefinder=False)
+        self._plnd_backend = isinstance(self.params, CopterParams) and int(self.params.get("PLND_TYPE")) == 1
 
     def _plnd_on(self) -> bool:
-        return int(self.params.get("PLND_ENABLED")) == 1 and int(self.params.get("PLND_TYPE")) == 1
+        return self._plnd_backend and int(self.params.get("PLND_ENABLED")) == 1
+
+    def reboot(self, what: float) -> tuple[int, str]:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN param1 = 1, disarmed: the parameters stay (they are
+        in its eeprom), the boot-time ones take effect, the EKF settles again, STABILIZE."""
+        if not (math.isfinite(what) and int(what) == 1):
+            return M.MAV_RESULT_UNSUPPORTED, ""
+        if self.armed:
+            return M.MAV_RESULT_FAILED, "Reboot refused: disarm first"
+        self._settle_s = self.time_s + self.cfg.personality.prearm_settle_s
+        self._start_precland()
+        self._enter(CopterMode.STABILIZE)
+        self.mode = Mode.POSCTL
+        return M.MAV_RESULT_ACCEPTED, ""
 
     def _rangefinder(self) -> bool:
         return int(self.params.get("RNGFND1_TYPE")) != 0

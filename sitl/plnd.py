@@ -93,7 +93,7 @@ class ApTargetEstimator:
             if m.frame != FRAME_BODY_FRD:
                 if not self._wrong_frame_said:
                     self._wrong_frame_said = True
-                    self.events.append("Plnd: Frame not supported ")
+                    self.events.append("Plnd: Frame not supported")
                 return False
             if m.distance_m <= 0:
                 return False

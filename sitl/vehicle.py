@@ -418,6 +418,10 @@ class SimVehicle:
         if self.rejected_targets in (1, 10, 100) or self.rejected_targets % 1000 == 0:
             self.say(mavlink.MAV_SEVERITY_CRITICAL, why)
 
+    def reboot(self, what: float) -> tuple[int, str]:
+        """Personality: MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (the PX4 personality does not reboot)."""
+        return mavlink.MAV_RESULT_UNSUPPORTED, ""
+
     def precision_land(self) -> tuple[int, str]:
         """Personality: PX4's VEHICLE_CMD_NAV_PRECLAND (MAVLink command 23): AUTO.PRECLAND."""
         if self.landed and not self.armed:

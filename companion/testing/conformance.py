@@ -296,3 +296,207 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+# ----- precision landing ------------------------------------------------------------------------
+PRECLAND_POINT_NE_M = (3.0, 2.0)  # the fixed point to land on, from where the vehicle took off
+PRECLAND_ALT_M = 4.0
+PX4_PRECLAND_PARAMS = ("PLD_BTOUT", "PLD_HACC_RAD", "PLD_FAPPR_ALT", "PLD_SRCH_ALT", "PLD_SRCH_TOUT", "PLD_MAX_SRCH",
+                       "LTEST_MODE", "LTEST_ACC_UNC", "LTEST_MEAS_UNC", "LTEST_SCALE_X", "LTEST_SENS_ROT")
+AP_PRECLAND_PARAMS = ("PLND_ENABLED", "PLND_TYPE", "PLND_EST_TYPE", "PLND_LAG", "PLND_XY_DIST_MAX", "PLND_STRICT",
+                      "PLND_RET_MAX", "PLND_TIMEOUT", "PLND_ALT_MIN", "PLND_ALT_MAX", "PLND_OPTIONS", "PLND_ORIENT")
+
+
+@dataclass
+class PrecLandOutcome:
+    """What a vehicle did with LANDING_TARGET toward a fixed point and a precision landing request."""
+
+    autopilot: str = ""
+    params: dict[str, float | None] = field(default_factory=dict)
+    reboot_ack: str = ""  # ArduPilot: PLND_TYPE takes effect at boot
+    armed: bool = False
+    climbed_m: float | None = None
+    mode_ack: str = ""
+    mode_in_heartbeat: str = ""
+    landed_after_s: float | None = None
+    touchdown_from_point_m: float | None = None  # horizontal, in the vehicle's own local frame
+    start_from_point_m: float | None = None
+    wrong_frame_texts: list[str] = field(default_factory=list)  # said after targets in the other autopilot's frame
+    texts: list[str] = field(default_factory=list)  # what it said meanwhile
+    errors: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class TextListener:
+    """STATUSTEXT from a second link, on a thread, saying HEARTBEAT as a ground station: PX4 sends
+    none on its onboard (API) link, and on its ground station link only to a peer it heard."""
+
+    def __init__(self, connection: str) -> None:
+        import threading
+
+        self.texts: list[str] = []
+        self._mav = mavutil.mavlink_connection(connection, source_system=247)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_beat = 0.0
+        while not self._stop.is_set():
+            if time.monotonic() >= next_beat:
+                self._mav.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                next_beat = time.monotonic() + 1.0
+            msg = self._mav.recv_match(type="STATUSTEXT", blocking=True, timeout=0.2)
+            if msg is not None and msg.get_srcComponent() == 1:
+                self.texts.append(str(msg.text))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self._mav.close()
+
+
+class PrecLandScript(Script):
+    """Take off, send LANDING_TARGET for a fixed point 3 m north, 2 m east of the take-off place
+    (PX4: LOCAL_NED; ArduPilot: BODY_FRD, from the vehicle's own reported position and attitude),
+    ask for precision landing (PX4: AUTO.PRECLAND; ArduPilot: PLND on, LAND) and see where it lands."""
+
+    def __init__(self, connection: str, land_s: float = 60.0, texts_from: str | None = None) -> None:
+        super().__init__(connection)
+        self.land_s = land_s
+        self.listener = TextListener(texts_from) if texts_from else None
+        self.pr = PrecLandOutcome()
+        self.xy = (NAN, NAN)
+        self.attitude = (0.0, 0.0, 0.0)
+        self.custom_mode = 0
+
+    def _fold(self, msg: Any) -> None:
+        super()._fold(msg)
+        if msg.get_srcComponent() != 1:
+            return
+        kind = msg.get_type()
+        if kind == "LOCAL_POSITION_NED":
+            self.xy = (float(msg.x), float(msg.y))
+        elif kind == "ATTITUDE":
+            self.attitude = (float(msg.roll), float(msg.pitch), float(msg.yaw))
+        elif kind == "HEARTBEAT" and msg.type not in (M.MAV_TYPE_GCS, M.MAV_TYPE_ONBOARD_CONTROLLER):
+            self.custom_mode = int(msg.custom_mode)
+        elif kind == "STATUSTEXT":
+            self._said(str(msg.text))
+
+    def _said(self, text: str) -> None:
+        if len(self.pr.texts) < 40 and text not in self.pr.texts:
+            self.pr.texts.append(text)
+
+    def _pump(self, seconds: float, until: Any = None) -> Any:
+        found = super()._pump(seconds, until)
+        while self.listener is not None and self.listener.texts:
+            self._said(self.listener.texts.pop(0))
+        return found
+
+    def _target(self, point: tuple[float, float, float], wrong_frame: bool = False) -> None:
+        from sitl.landing_target import FRAME_BODY_FRD, FRAME_LOCAL_NED, ned_to_body
+
+        rel = (point[0] - self.xy[0], point[1] - self.xy[1], point[2] - self.z)
+        distance = math.sqrt(sum(c * c for c in rel))
+        body = ned_to_body(rel, self.attitude)
+        angles = (math.atan2(body[1], body[2]), math.atan2(-body[0], body[2]))
+        frame, xyz = (FRAME_LOCAL_NED, point) if (self.pr.autopilot == "PX4") != wrong_frame else (FRAME_BODY_FRD, body)
+        self.mav.mav.landing_target_send(int(time.monotonic() * 1e6), 0, frame, *angles, distance, 0.1, 0.1, *xyz,
+                                         [1.0, 0.0, 0.0, 0.0], M.LANDING_TARGET_TYPE_VISION_FIDUCIAL, 1)
+
+    def _send_targets(self, point: tuple[float, float, float], seconds: float, until: Any = None) -> float | None:
+        start = time.monotonic()
+        while (elapsed := time.monotonic() - start) < seconds:
+            self._target(point)
+            self._pump(0.1)
+            if until is not None and until():
+                return elapsed
+        return None
+
+    def run_precland(self, armable_timeout_s: float = 120.0) -> PrecLandOutcome:
+        pr = self.pr
+        hb = self.mav.wait_heartbeat(timeout=60)
+        if hb is None:
+            pr.errors.append("no HEARTBEAT")
+            return pr
+        pr.autopilot = str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
+        px4 = pr.autopilot == "PX4"
+        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 20)):
+            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        if not px4:
+            self._plnd_on_and_reboot()
+        pr.params = {n: self._param(n) for n in (PX4_PRECLAND_PARAMS if px4 else AP_PRECLAND_PARAMS)}
+        takeoff_mode = MODES.get(pr.autopilot, ("", ""))[0]
+        self._arm(takeoff_mode, armable_timeout_s)
+        pr.armed = self.armed
+        if not self.armed:
+            pr.errors.append("never armed")
+            return self._finish_precland()
+        ground = (self.xy[0], self.xy[1], self.z)
+        self._take_off(px4)
+        pr.climbed_m = round(ground[2] - self.z, 2)
+        point = (ground[0] + PRECLAND_POINT_NE_M[0], ground[1] + PRECLAND_POINT_NE_M[1], ground[2])
+        pr.start_from_point_m = round(math.hypot(point[0] - self.xy[0], point[1] - self.xy[1]), 2)
+        said = len(pr.texts)
+        for _ in range(3):
+            self._target(point, wrong_frame=True)
+            self._pump(0.2)
+        self._pump(1.0)
+        pr.wrong_frame_texts = pr.texts[said:]
+        self._send_targets(point, 1.5)
+        pr.mode_ack = self._precland_mode(px4)
+        self._send_targets(point, 1.5)
+        c = self.custom_mode
+        pr.mode_in_heartbeat = f"{self.mode} (main {(c >> 16) & 0xFF}, sub {(c >> 24) & 0xFF})" if px4 else self.mode
+        on_ground = lambda: self.landed == M.MAV_LANDED_STATE_ON_GROUND or not self.armed  # noqa: E731
+        landed = self._send_targets(point, self.land_s, on_ground)
+        pr.landed_after_s = None if landed is None else round(landed + 3.0, 1)
+        if landed is not None:
+            pr.touchdown_from_point_m = round(math.hypot(point[0] - self.xy[0], point[1] - self.xy[1]), 2)
+        return self._finish_precland()
+
+    def _plnd_on_and_reboot(self) -> None:
+        """PLND_ENABLED = 1, PLND_TYPE = 1 (MAVLink), then a reboot: ArduCopter makes its
+        precision landing backend at boot (set at run time only, LAND lands vertically)."""
+        for name in ("PLND_ENABLED", "PLND_TYPE"):
+            self.mav.mav.param_set_send(self.mav.target_system, 1, name.encode(), 1.0, M.MAV_PARAM_TYPE_INT8)
+            self._pump(0.5)
+        self.pr.reboot_ack = self._command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, [1.0])
+        self._pump(3.0)
+        self.mav.wait_heartbeat(timeout=60)
+        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 20)):
+            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+
+    def _precland_mode(self, px4: bool) -> str:
+        """PX4: DO_SET_MODE AUTO (4) / PRECLAND (9), a mode pymavlink has no name for; ArduPilot: LAND."""
+        if not px4:
+            return self._set_mode("LAND")
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (M.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        return self._command(M.MAV_CMD_DO_SET_MODE, [float(base), 4.0, 9.0])
+
+    def _take_off(self, px4: bool) -> None:
+        if px4:
+            self.mav.mav.param_set_send(self.mav.target_system, 1, b"MIS_TAKEOFF_ALT", PRECLAND_ALT_M, M.MAV_PARAM_TYPE_REAL32)
+            self._pump(0.5)
+            self._command(M.MAV_CMD_NAV_TAKEOFF, [-1.0, 0.0, 0.0, NAN, NAN, NAN, NAN])
+        else:
+            self._command(M.MAV_CMD_NAV_TAKEOFF, [0.0, 0.0, 0.0, NAN, 0.0, 0.0, PRECLAND_ALT_M])
+        ground_z = self.z
+        self._pump(20.0, lambda m: m.get_type() == "LOCAL_POSITION_NED" and ground_z - m.z > 0.9 * PRECLAND_ALT_M)
+        self._pump(2.0)
+
+    def _finish_precland(self) -> PrecLandOutcome:
+        self._finish()
+        if self.listener is not None:
+            self.listener.close()
+        return self.pr
+
+
+def fly_precland(connection: str, land_s: float = 60.0, texts_from: str | None = None) -> PrecLandOutcome:
+    """The precision-landing script once against the vehicle at ``connection`` (STATUSTEXT also
+    from ``texts_from``, a second link, if given)."""
+    return PrecLandScript(connection, land_s, texts_from).run_precland()
+

@@ -232,7 +232,7 @@ def test_ardupilot_takes_body_frd_and_angles_but_not_local_ned() -> None:
     assert got is not None and (got.north_m, got.east_m) == pytest.approx((3.0, 0.0))
     for _ in range(3):  # dropped, said once
         assert not est.measure(TargetMeasurement(0.1, 0, 0, 5.0, FRAME_LOCAL_NED, True, 3.0, 0.0, 4.0), None)
-    assert est.events.count("Plnd: Frame not supported ") == 1
+    assert est.events.count("Plnd: Frame not supported") == 1
     assert not est.measure(TargetMeasurement(0.1, 0.0, 0.0, 0.0, FRAME_BODY_FRD, False), None)  # no distance, no rangefinder
     assert est.measure(TargetMeasurement(0.1, 0.0, 0.0, 0.0, FRAME_BODY_FRD, False), 4.0)  # a rangefinder's height
 
@@ -303,3 +303,25 @@ def test_ardupilot_without_a_rangefinder_or_strict_0_lands_vertically_when_the_t
     for pl in (_lost_run(strict=1, rangefinder=False), _lost_run(strict=0, rangefinder=True)):
         g = pl.update(pose(0.2, n=0.3, d=-3.0), None, 0.5)
         assert pl.state is ApState.VERTICAL and g.descending and g.north_m == 0.3
+
+
+def test_ardupilot_plnd_type_takes_effect_at_the_next_reboot() -> None:
+    """Measured on real ArduCopter: PLND_TYPE set at run time reads back 1, yet LAND lands
+    vertically; after MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN it lands on the target."""
+    from pymavlink.dialects.v20 import common as M
+
+    from sitl.config import PersonalityConfig, SitlConfig
+    from sitl.personality import make_vehicle
+
+    v = make_vehicle(SitlConfig(personality=PersonalityConfig(autopilot="ardupilot", prearm_settle_s=0.0)))
+    target_msg = TargetMeasurement(0.0, 0, 0, 5.0, FRAME_BODY_FRD, True, 1.0, 0.0, 4.9)
+    assert v.set_param("PLND_ENABLED", 1.0) and v.set_param("PLND_TYPE", 1.0)
+    for _ in range(5):
+        v.step()
+    assert not v.landing_target(target_msg)  # no backend: ArduCopter made it at boot
+    assert v.reboot(1.0)[0] == M.MAV_RESULT_ACCEPTED and v.params.get("PLND_TYPE") == 1.0
+    for _ in range(5):
+        v.step()
+    assert v.landing_target(target_msg)
+    v.arm(force=True)
+    assert v.reboot(1.0)[0] == M.MAV_RESULT_FAILED  # not while armed

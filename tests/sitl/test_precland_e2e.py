@@ -83,10 +83,20 @@ def ask_for_precision_landing(client: MavTestClient, kind: str) -> None:
     assert client.command(M.MAV_CMD_DO_SET_MODE, 1 | 128, 9) == M.MAV_RESULT_ACCEPTED
 
 
+def plnd_on_at_boot(client: MavTestClient) -> None:
+    """ArduCopter makes its precision landing backend at boot: PLND_TYPE, then a reboot."""
+    client.wait_for(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1)
+    client.send(M.MAVLink_param_set_message(1, 1, b"PLND_TYPE", 1.0, M.MAV_PARAM_TYPE_INT8))
+    client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "PLND_TYPE")
+    assert client.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == M.MAV_RESULT_ACCEPTED
+
+
 def test_precision_landing_on_a_moving_pad(client: MavTestClient, flight: tuple[str, SitlProcess]) -> None:
     kind, sitl = flight
     sim = SimulatorClient("127.0.0.1", sitl.control_port)
     try:
+        if kind == "ardupilot":
+            plnd_on_at_boot(client)
         take_off(client, kind)
         client.wait_for(lambda m: m.get_type() == "LOCAL_POSITION_NED" and m.z < -3.5, timeout_s=20)
         sim.request("set_ground_vehicle", velocity_ne_m_s=[PAD_SPEED_M_S[kind], 0.0])
