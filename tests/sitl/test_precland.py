@@ -325,3 +325,22 @@ def test_ardupilot_plnd_type_takes_effect_at_the_next_reboot() -> None:
     assert v.landing_target(target_msg)
     v.arm(force=True)
     assert v.reboot(1.0)[0] == M.MAV_RESULT_FAILED  # not while armed
+
+
+def test_px4_precision_land_command_and_mode_as_px4_reports_them() -> None:
+    """Command 23 (PX4's NAV_PRECLAND) and DO_SET_MODE (4, 9) enter AUTO.PRECLAND; the HEARTBEAT
+    says custom mode 4 << 16 | 9 << 24; refused landed and disarmed; NAV_LAND stays a normal one."""
+    from pymavlink.dialects.v20 import common as M
+
+    from sitl.config import SitlConfig
+    from sitl.modes import Mode
+    from sitl.vehicle import SimVehicle
+
+    v = SimVehicle(SitlConfig())
+    assert v.precision_land()[0] == M.MAV_RESULT_DENIED
+    v.reset_episode(1)  # hovering, armed
+    assert v.precision_land()[0] == M.MAV_RESULT_ACCEPTED and v.mode is Mode.AUTO_PRECLAND
+    assert v.heartbeat_mode() == (M.MAV_AUTOPILOT_PX4, (4 << 16) | (9 << 24))
+    assert v.precision_landing_state() == "start"
+    assert v.land()[0] == M.MAV_RESULT_ACCEPTED and v.mode is Mode.AUTO_LAND
+    assert v.set_mode_numbers(4, 9)[0] == M.MAV_RESULT_ACCEPTED and v.mode is Mode.AUTO_PRECLAND
