@@ -3,8 +3,9 @@
 In process, no MAVLink: each episode starts as the experiment's do (hovering 8 m above the pad,
 within +-3 m, armed), then LANDING_TARGET from the true pad position at the camera rate (10.5
 Hz), only while the pad's centre is in the downward camera's field of view, and precision
-landing asked for: PX4 AUTO.PRECLAND (LOCAL_NED targets); ArduCopter LAND with PLND on (BODY_FRD
-targets), with its defaults and with the moving-target option. An episode ends at touchdown
+landing asked for: PX4 AUTO.PRECLAND with LOCAL_NED targets, and with the angles form through its
+landing target estimator (LTEST_MODE moving and stationary); ArduCopter LAND with PLND on
+(BODY_FRD targets), with its defaults and with the moving-target option. An episode ends at touchdown
 or after 60 s. Reports per case: touchdowns, successes (within 0.5 m of the pad's centre, on
 the roof), touchdown distance, time to land. Last line of stdout: one JSON object.
 """
@@ -29,6 +30,7 @@ from sitl.landing_target import (
     ned_to_body,
 )
 from sitl.modes import Mode
+from sitl.params import REAL32
 from sitl.personality import CopterMode, CopterVehicle, make_vehicle
 from sitl.vehicle import SimVehicle
 
@@ -40,11 +42,14 @@ TARGET_EVERY_STEPS = 12  # 126 Hz / 12 = 10.5 Hz, the camera rate
 class Case:
     name: str
     personality: str
-    plnd_params: tuple[tuple[str, float], ...] = ()
+    params: tuple[tuple[str, float], ...] = ()
+    angles: bool = False  # the angles form (position_valid 0) instead of a position
 
 
 CASES = (
     Case("px4", "px4"),
+    Case("px4 angles, LTEST_MODE 0 (moving)", "px4", angles=True),
+    Case("px4 angles, LTEST_MODE 1 (stationary)", "px4", (("LTEST_MODE", 1.0),), angles=True),
     Case("ardupilot", "ardupilot"),
     Case("ardupilot moving-target", "ardupilot", (("PLND_OPTIONS", 1.0),)),
 )
@@ -60,7 +65,7 @@ def in_view(body: tuple[float, float, float], cam: CameraConfig) -> bool:
     return abs(ax) < half_h and abs(ay) < half_v
 
 
-def target_for(v: SimVehicle) -> TargetMeasurement | None:
+def target_for(v: SimVehicle, angles: bool) -> TargetMeasurement | None:
     """LANDING_TARGET as the companion's contract has it, from the truth."""
     s = v.state
     pad = v.world.pad_ned(s.time_s)
@@ -70,6 +75,8 @@ def target_for(v: SimVehicle) -> TargetMeasurement | None:
         return None
     ax, ay = angles_of(body)
     distance = math.sqrt(sum(c * c for c in rel))
+    if angles:
+        return TargetMeasurement(s.time_s, ax, ay, distance, FRAME_BODY_FRD, False)
     if isinstance(v, CopterVehicle):
         return TargetMeasurement(s.time_s, ax, ay, distance, FRAME_BODY_FRD, True, *body)
     return TargetMeasurement(s.time_s, ax, ay, distance, FRAME_LOCAL_NED, True,
@@ -87,15 +94,17 @@ def episode(case: Case, pad_speed_m_s: float, seed: int) -> dict[str, object]:
     cfg = SitlConfig(personality=PersonalityConfig(autopilot=case.personality, prearm_settle_s=0.0),  # type: ignore[arg-type]
                      world=WorldConfig(vehicle_velocity_ne_m_s=(pad_speed_m_s, 0.0), seed=seed))
     v = make_vehicle(cfg)
+    for name, value in case.params:
+        v.set_param(name, value, REAL32)
     if isinstance(v, CopterVehicle):
-        for name, value in (("PLND_ENABLED", 1.0), ("PLND_TYPE", 1.0), *case.plnd_params):
-            v.set_param(name, value)
+        v.set_param("PLND_ENABLED", 1.0, REAL32)
+        v.set_param("PLND_TYPE", 1.0, REAL32)
         v.reboot(1.0)  # PLND_TYPE takes effect at boot
     v.reset_episode(seed)
     start_s = v.time_s
     asked = False
     while v.touchdown is None and v.time_s - start_s < EPISODE_S:
-        if v.dynamics.steps % TARGET_EVERY_STEPS == 0 and (m := target_for(v)) is not None:
+        if v.dynamics.steps % TARGET_EVERY_STEPS == 0 and (m := target_for(v, case.angles)) is not None:
             v.landing_target(m)
         if not asked and v.time_s - start_s > 0.5:
             asked = True
@@ -128,7 +137,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     args = parser.parse_args()
     machine_ref = machine_ref_rt()
-    speeds = (0.0, 0.5) if args.quick else (0.0, 0.25, 0.5, 1.0)
+    speeds = (0.0, 0.5) if args.quick else (0.0, 0.1, 0.25, 0.5, 1.0)
     seeds = range(2 if args.quick else args.seeds)
     start = time.perf_counter()
     results: dict[str, dict[str, object]] = {}
@@ -136,7 +145,7 @@ def main() -> None:
         for speed in speeds:
             runs = [episode(case, speed, seed) for seed in seeds]
             results[f"{case.name} @ {speed:g} m/s"] = summarise(runs)
-            print(f"{case.name:26s} pad {speed:4g} m/s: {results[f'{case.name} @ {speed:g} m/s']}")
+            print(f"{case.name:38s} pad {speed:4g} m/s: {results[f'{case.name} @ {speed:g} m/s']}")
     print(json.dumps({"cases": results, "episode_s_max": EPISODE_S, "seeds": len(seeds),
                       "wall_s": round(time.perf_counter() - start, 1), "machine_ref_rt": round(machine_ref, 1)}))
 
