@@ -122,9 +122,13 @@ class Script:
 
     def _stream(self, down_m_s: float, seconds: float, until: Any = None) -> float | None:
         """Stream a body velocity at 10 Hz for ``seconds``; seconds until ``until()`` (None: never)."""
+        return self._at_10_hz(lambda: self._velocity(down_m_s), seconds, until)
+
+    def _at_10_hz(self, send: Any, seconds: float, until: Any = None) -> float | None:
+        """``send()`` every 0.1 s for ``seconds``, reading meanwhile; seconds until ``until()``."""
         start = time.monotonic()
         while (elapsed := time.monotonic() - start) < seconds:
-            self._velocity(down_m_s)
+            send()
             self._pump(0.1)
             if until is not None and until():
                 return elapsed
@@ -408,13 +412,7 @@ class PrecLandScript(Script):
                                          [1.0, 0.0, 0.0, 0.0], M.LANDING_TARGET_TYPE_VISION_FIDUCIAL, 1)
 
     def _send_targets(self, point: tuple[float, float, float], seconds: float, until: Any = None) -> float | None:
-        start = time.monotonic()
-        while (elapsed := time.monotonic() - start) < seconds:
-            self._target(point)
-            self._pump(0.1)
-            if until is not None and until():
-                return elapsed
-        return None
+        return self._at_10_hz(lambda: self._target(point), seconds, until)
 
     def run_precland(self, armable_timeout_s: float = 120.0) -> PrecLandOutcome:
         pr = self.pr
