@@ -30,10 +30,10 @@ def cheapest_trial(results_dir: Path) -> str:
 
 def test_every_committed_results_folder_records_its_environment() -> None:
     folders = [p for p in (ROOT / "results").iterdir() if p.is_dir()]
-    folders += [p for p in (ROOT / "results" / "calibration").iterdir() if p.is_dir()]
+    groups = [p for p in folders if not any(c.is_file() for c in p.iterdir())]  # e.g. calibration/, precland/
+    folders = [p for p in folders if p not in groups] + [c for g in groups for c in g.iterdir() if c.is_dir()]
     folders += [p for p in (GRID / "variants").iterdir() if p.is_dir()] if (GRID / "variants").is_dir() else []
-    missing = [str(p.relative_to(ROOT)) for p in folders
-               if p.name != "calibration" and not ne.read_records(p)]
+    missing = [str(p.relative_to(ROOT)) for p in folders if not ne.read_records(p)]
     assert not missing, f"no environment.jsonl in {missing}"
 
 
