@@ -18,6 +18,7 @@ import time
 
 import cv2
 import numpy as np
+from machine_ref import machine_ref_rt
 
 from companion.vision.aruco import ArucoPadDetector
 from sitl.camera import CAM_FROM_BODY, CameraRenderer, camera_matrix, rotation_ned_from_body
@@ -65,13 +66,15 @@ def main() -> None:
             seen += 1
             truth = CAM_FROM_BODY @ rotation_ned_from_body(attitude).T @ (pad - position)
             errors.append(float(np.linalg.norm(np.array(pose.position_cam_m) - truth)))
-        err = np.array(errors) if errors else np.array([math.nan])
+        p50 = round(float(np.median(errors)), 4) if errors else None  # None: nothing decoded (JSON has no NaN)
+        p95 = round(float(np.percentile(errors, 95)), 4) if errors else None
         bands.append({"height_m": [low, high], "frames": args.frames, "decoded": round(seen / args.frames, 3),
-                      "error_m_p50": round(float(np.median(err)), 4), "error_m_p95": round(float(np.percentile(err, 95)), 4)})
+                      "error_m_p50": p50, "error_m_p95": p95})
         print(f"{low:4.1f}-{high:4.1f} m: decoded {seen}/{args.frames}, error p50 {bands[-1]['error_m_p50']} m, "
               f"p95 {bands[-1]['error_m_p95']} m")
     print(json.dumps({"bench": "aruco", "seed": args.seed, "bands": bands,
-                      "detect_ms_p50": round(float(np.median(times)) * 1e3, 2)}))
+                      "detect_ms_p50": round(float(np.median(times)) * 1e3, 2),
+                      "machine_ref_rt": round(machine_ref_rt(), 1)}))
 
 
 if __name__ == "__main__":
