@@ -8,8 +8,8 @@ GUIDED, entered at any time, flies SET_POSITION_TARGET_LOCAL_NED and is where NA
 (param7: metres above home); a velocity target not renewed within GUID_TIMEOUT stops the vehicle,
 which stays in GUIDED; arming is refused while the EKF settles after boot, with "PreArm:"
 reasons in STATUSTEXT; ArduCopter's parameter names for the limits and gains the cascade uses;
-only HEARTBEAT and SYS_STATUS until streams are asked for; no SYSTEM_TIME frame marker, so no
-lockstep. STABILIZE and LOITER fly as the SITL's position-assisted mode (centred sticks hold).
+only HEARTBEAT and SYS_STATUS until streams are asked for (again after a reboot, which is
+REBOOT_S of silence); no SYSTEM_TIME frame marker, so no lockstep. STABILIZE and LOITER fly as the SITL's position-assisted mode (centred sticks hold).
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ LOOK_AHEAD_MIN_SPEED_M_S = 1.0  # auto yaw faces the direction of travel above t
 PREARM_REPORT_S = 30.0  # ArduPilot repeats failing pre-arm checks this often while disarmed
 PREARM_REASONS = ("PreArm: EKF3 waiting for GPS config data", "Arm: Need Position Estimate")
 RTL_ARRIVED_M = 0.5
+REBOOT_S = 8.0  # silent after MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (a real ArduCopter: seconds; longer than 1 Hz HEARTBEATs)
 
 
 class CopterMode(IntEnum):
@@ -217,6 +218,7 @@ class CopterVehicle(SimVehicle):
         self.params = CopterParams(cfg)
         self.controller.configure(apply_to_config(self.controller.cfg, self.params))
         self._settle_s = cfg.personality.prearm_settle_s
+        self._booting_until_s = -1.0
         self._next_prearm_report_s = 0.0
 
     # ----- what the world sees -----------------------------------------------------------
@@ -325,11 +327,16 @@ class CopterVehicle(SimVehicle):
             return M.MAV_RESULT_UNSUPPORTED, ""
         if self.armed:
             return M.MAV_RESULT_FAILED, "Reboot refused: disarm first"
-        self._settle_s = self.time_s + self.cfg.personality.prearm_settle_s
+        self._booting_until_s = self.time_s + REBOOT_S
+        self._settle_s = self._booting_until_s + self.cfg.personality.prearm_settle_s
         self._start_precland()
         self._enter(CopterMode.STABILIZE)
         self.mode = Mode.POSCTL
         return M.MAV_RESULT_ACCEPTED, ""
+
+    def rebooting(self) -> bool:
+        """Silent for REBOOT_S after an accepted reboot, as ArduCopter is while it starts again."""
+        return self.time_s < self._booting_until_s
 
     def _rangefinder(self) -> bool:
         return int(self.params.get("RNGFND1_TYPE")) != 0

@@ -274,6 +274,7 @@ class SitlServer:
             cam_info = CameraInfo(self.camera.server.uri, cfg.camera.width_px, cfg.camera.height_px, cfg.camera.hfov_deg,
                                   cfg.clock.frame_rate_hz, rtp.uri if rtp is not None else None)
         self.handler = MessageHandler(self.vehicle, self.scheduler, cam_info)
+        self._rebooted = False  # the autopilot was silent for a reboot: its streams start afresh
         self._next_camera_heartbeat_s = 0.0
 
     def _open_camera(self) -> _CameraFeed:
@@ -389,8 +390,9 @@ class SitlServer:
                 self._next_camera_heartbeat_s = v.time_s + 1.0
                 hb = M.MAVLink_heartbeat_message(M.MAV_TYPE_CAMERA, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
                 self._broadcast(Outgoing(CAMERA, hb))
-        self._flush_events()
-        self._greet_silent_udp_peers()
+        if not self._silent_for_reboot():
+            self._flush_events()
+            self._greet_silent_udp_peers()
         if v.sends_frame_marker:
             self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[M.MAVLINK_MSG_ID_SYSTEM_TIME](v)))
         self._flush_all()
@@ -409,7 +411,21 @@ class SitlServer:
         for c in self.clients:
             c.flush()
 
+    def _silent_for_reboot(self) -> bool:
+        """A rebooting autopilot sends and reads nothing, and comes back with its boot-time
+        streams only (a companion asks for its streams again, as after connecting)."""
+        if self.vehicle.rebooting():
+            self._rebooted = True
+            return True
+        if self._rebooted:
+            self._rebooted = False
+            self.scheduler = TelemetryScheduler(self.vehicle.default_rates_hz)
+            self.handler.scheduler = self.scheduler
+        return False
+
     def _send_due(self) -> None:
+        if self._silent_for_reboot():
+            return
         v = self.vehicle
         for msg_id in self.scheduler.due(v.time_s):
             self._broadcast(Outgoing(AUTOPILOT, COMPOSERS[msg_id](v)))
@@ -454,6 +470,9 @@ class SitlServer:
         for msg in msgs:
             if msg.get_type() == "SETUP_SIGNING":
                 self.signing.on_setup_signing(msg, client.secure)
+                continue
+            if self._silent_for_reboot():
+                self._forward(client, msg)
                 continue
             result = self.handler.handle(msg)
             for out in result.replies:

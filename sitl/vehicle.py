@@ -422,6 +422,10 @@ class SimVehicle:
         """Personality: MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (the PX4 personality does not reboot)."""
         return mavlink.MAV_RESULT_UNSUPPORTED, ""
 
+    def rebooting(self) -> bool:
+        """Personality: True while the autopilot reboots (it sends nothing and reads nothing)."""
+        return False
+
     def precision_land(self) -> tuple[int, str]:
         """Personality: PX4's VEHICLE_CMD_NAV_PRECLAND (MAVLink command 23): AUTO.PRECLAND."""
         if self.landed and not self.armed:

@@ -320,7 +320,8 @@ def test_ardupilot_plnd_type_takes_effect_at_the_next_reboot() -> None:
         v.step()
     assert not v.landing_target(target_msg)  # no backend: ArduCopter made it at boot
     assert v.reboot(1.0)[0] == M.MAV_RESULT_ACCEPTED and v.params.get("PLND_TYPE") == 1.0
-    for _ in range(5):
+    assert v.rebooting()  # silent: the server sends and reads nothing until it has booted
+    while v.rebooting():
         v.step()
     assert v.landing_target(target_msg)
     v.arm(force=True)

@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import common as M
 
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from sitl.landing_target import FRAME_BODY_FRD, FRAME_LOCAL_NED, ned_to_body
+from sitl.personality import REBOOT_S
 from tests.mav_client import MavTestClient, nan7
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
@@ -84,11 +85,16 @@ def ask_for_precision_landing(client: MavTestClient, kind: str) -> None:
 
 
 def plnd_on_at_boot(client: MavTestClient) -> None:
-    """ArduCopter makes its precision landing backend at boot: PLND_TYPE, then a reboot."""
+    """ArduCopter makes its precision landing backend at boot: PLND_TYPE, then a reboot, which
+    is silent for REBOOT_S (take_off waits for the HEARTBEAT after it and asks for the streams)."""
     client.wait_for(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1)
     client.send(M.MAVLink_param_set_message(1, 1, b"PLND_TYPE", 1.0, M.MAV_PARAM_TYPE_INT8))
     client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "PLND_TYPE")
     assert client.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == M.MAV_RESULT_ACCEPTED
+    silent_until = time.monotonic() + 0.8 * REBOOT_S / SPEED
+    while time.monotonic() < silent_until:
+        assert not any(m.get_srcComponent() == 1 for m in client.pump(0.1)), "the autopilot spoke while rebooting"
+    client.inbox.clear()
 
 
 def test_precision_landing_on_a_moving_pad(client: MavTestClient, flight: tuple[str, SitlProcess]) -> None:
