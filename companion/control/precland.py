@@ -1,5 +1,7 @@
 """The baseline an operator would fly: the autopilot's own precision landing, fed by the companion.
 
+Before the run's first arming, an autopilot whose precision landing is made at boot (ArduCopter's
+PLND_*) gets its parameters and a reboot if they are not set yet (:meth:`PrecisionLander.prepare`).
 After the episode's start (the companion flew there), the landing is handed over: the dialect's
 parameters and mode (PX4 AUTO.PRECLAND; ArduPilot PLND_* and LAND), then one LANDING_TARGET per
 camera frame in which the pad's board is decoded (companion/link/landing_target.py has the
@@ -10,9 +12,11 @@ from __future__ import annotations
 
 import logging
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
-from companion.errors import CommandRejected
+from companion.errors import CommandRejected, LinkTimeout
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect
 from companion.link.landing_target import LandingTarget, landing_target
@@ -21,7 +25,46 @@ from companion.vision.camera import CameraSource, SitlCameraSource
 from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
+
+
+def _listed(values: dict[str, float | None]) -> str:
+    return ", ".join(f"{name}={'unread' if v is None else f'{v:g}'}" for name, v in values.items())
 PARAM_TOLERANCE = 1e-3
+REBOOT_SILENT_WITHIN_S = 10.0  # an ACKed reboot goes silent within this (ArduCopter: at once)
+REBOOT_BACK_WITHIN_S = 60.0  # and its HEARTBEAT comes back within this (a flight controller: ~5-30 s)
+HEARTBEAT_GONE_S = 3.0  # no autopilot HEARTBEAT this long: it is rebooting (they come at 1 Hz)
+POLL_S = 0.05
+
+
+def await_reboot(link: VehicleLink, silent_within_s: float = REBOOT_SILENT_WITHIN_S,
+                 back_within_s: float = REBOOT_BACK_WITHIN_S, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+    """The autopilot's HEARTBEAT goes away and comes back: only then did the boot-time parameters
+    take effect. (Its HEARTBEAT, not the link: other components of its system, a camera, keep
+    talking.) ``clock`` is the link's. LinkTimeout saying which half did not happen."""
+    def last_heartbeat_s() -> float:
+        snap = link.state()
+        return -math.inf if snap is None else snap.heartbeat_s
+
+    if not _wait_until(lambda: clock() - last_heartbeat_s() > HEARTBEAT_GONE_S, silent_within_s, clock, sleep):
+        raise LinkTimeout(f"the vehicle ACKed the reboot but its HEARTBEAT kept coming for {silent_within_s:g} s: "
+                          "it did not reboot, so its boot-time precision landing parameters are not in effect; "
+                          "reboot it from the ground station and retry")
+    gone_s = last_heartbeat_s()
+    log.info("precision landing: the vehicle went silent for its reboot; waiting up to %.0f s", back_within_s)
+    if not _wait_until(lambda: last_heartbeat_s() > gone_s and link.link_alive(), back_within_s, clock, sleep):
+        raise LinkTimeout(f"the vehicle went silent for its reboot and its HEARTBEAT did not come back within "
+                          f"{back_within_s:g} s; check that it booted (power, its console) and fly again")
+
+
+def _wait_until(done: Callable[[], bool], timeout_s: float, clock: Callable[[], float],
+                sleep: Callable[[float], None]) -> bool:
+    deadline = clock() + timeout_s
+    while not done():
+        if clock() >= deadline:
+            return False
+        sleep(POLL_S)
+    return True
 
 
 @dataclass
@@ -42,8 +85,10 @@ class PrecisionLander:
     """Asks for the autopilot's precision landing and streams LANDING_TARGET from the camera."""
 
     def __init__(self, link: VehicleLink, camera: CameraSource | None, detector: ArucoPadDetector,
-                 frame_timeout_s: float = 0.5) -> None:
+                 frame_timeout_s: float = 0.5, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.link = link
+        self.clock, self.sleep = clock, sleep  # the reboot's waits (tests pass their own)
         self.camera = camera
         self.detector = detector
         self.frame_timeout_s = frame_timeout_s
@@ -60,20 +105,50 @@ class PrecisionLander:
         if self.camera is None:
             log.warning("precland without a camera: no LANDING_TARGET will be sent; the autopilot lands without a target")
 
+    def prepare(self, dialect: Dialect) -> bool:
+        """Before the run's first arming: parameters the autopilot reads only at boot, set and
+        made effective by a reboot while disarmed (nothing when already set). True: rebooted."""
+        if not dialect.precland_params_at_boot:
+            return False
+        current = {name: self.link.read_param(name) for name, _ in dialect.precland_params}
+        if not dialect.precland_reboot_needed(current):
+            log.info("precision landing: %s already in effect", _listed(current))
+            return False
+        snap = self.link.state()
+        if snap is None or snap.armed:
+            raise CommandRejected("reboot for precision landing", "ARMED", f"{_listed(current)}: {dialect.name} "
+                                  "applies them at boot only; land and disarm it, then fly again", origin="companion")
+        self._set_params(dialect)
+        log.warning("precision landing: %s reads %s at boot only: rebooting it (disarmed)", dialect.name,
+                    ", ".join(name for name, _ in dialect.precland_params))
+        self._reboot()
+        self.link.request_rates()  # streams start afresh after a boot, as after connecting
+        return True
+
+    def _reboot(self) -> None:
+        try:
+            self.link.reboot()
+        except LinkTimeout as exc:  # the ACK may be lost to the reboot itself: the silence decides
+            log.warning("precision landing: %s; waiting for the vehicle to go silent anyway", exc)
+        await_reboot(self.link, clock=self.clock, sleep=self.sleep)
+
     def engage(self, dialect: Dialect) -> None:
         """The dialect's parameters (each checked against the vehicle's echo), then its mode."""
         if not dialect.precland_mode:
             raise CommandRejected("precision landing", "UNSUPPORTED", f"{dialect.name} has no precision landing mode here",
                                   origin="companion")
+        self._set_params(dialect)
+        self.link.set_mode(dialect.precland_mode)
+        log.info("precision landing: %s asked (%s)", dialect.precland_mode,
+                 ", ".join(f"{n}={v:g}" for n, v in dialect.precland_params) or "no parameters")
+
+    def _set_params(self, dialect: Dialect) -> None:
+        """Each of the dialect's parameters, confirmed by the vehicle's PARAM_VALUE echo."""
         for name, value in dialect.precland_params:
             echoed = self.link.set_param(name, value)
             if echoed is None or not math.isclose(echoed, value, abs_tol=PARAM_TOLERANCE):
                 raise CommandRejected(f"PARAM_SET {name}={value:g}", "NOT_CONFIRMED",
-                                      f"the vehicle echoed {echoed}; set it at the ground station (ArduCopter "
-                                      "applies PLND_TYPE after a reboot) and retry")
-        self.link.set_mode(dialect.precland_mode)
-        log.info("precision landing: %s asked (%s)", dialect.precland_mode,
-                 ", ".join(f"{n}={v:g}" for n, v in dialect.precland_params) or "no parameters")
+                                      f"the vehicle echoed {echoed}; set it at the ground station and retry")
 
     def frame(self, snap: VehicleSnapshot, lockstep: bool) -> Frame | None:
         """Lockstep: the frame of this step. Real time: the next frame after the last one used

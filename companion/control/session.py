@@ -204,6 +204,7 @@ class EpisodeRunner:
         self._touchdown: TouchdownAssist | None = None
         self._evidence_note: str | None = None
         self._asked_truth = False
+        self._precland_prepared = False  # the lander's boot-time parameters checked (and rebooted for)
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
         self._warned_home = False
@@ -352,6 +353,7 @@ class EpisodeRunner:
     # ----- episode start -----------------------------------------------------------------------
     def _start(self, seed: int | None) -> tuple[VehicleSnapshot, list[str]]:
         notes: list[str] = []
+        self._prepare_precland(notes)
         if self.p.simulator is not None:
             reply = self.p.simulator.reset(seed)
             self._frame_ms = int(reply["time_boot_ms"])
@@ -360,6 +362,15 @@ class EpisodeRunner:
             snap = self._fly_to_start(seed)
             notes.append("started by flying to the start point")
         return self._ensure_offboard(snap, mode_known=self.p.simulator is None), notes
+
+    def _prepare_precland(self, notes: list[str]) -> None:
+        """Once a run, before its first arming: what the dialect needs at boot (ArduPilot may
+        reboot here). Retried by the next episode if it failed."""
+        if self.p.lander is None or self._precland_prepared:
+            return
+        if self.p.lander.prepare(self.dialect):
+            notes.append(f"precland: rebooted {self.dialect.name} for its boot-time precision landing parameters")
+        self._precland_prepared = True
 
     def _wait_telemetry_after(self, time_boot_ms: int) -> VehicleSnapshot:
         for _ in range(100):

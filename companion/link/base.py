@@ -221,6 +221,11 @@ class VehicleLink(ABC):
         or None when no echo came within ``timeout_s``. A backend that cannot: LinkError."""
         raise LinkError(f"this link ({type(self).__name__}) cannot set parameters; use the pymavlink link")
 
+    def reboot(self) -> None:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (param1 = 1: reboot the autopilot), ACKed; the
+        vehicle then goes silent and comes back by itself. A backend that cannot: LinkError."""
+        raise LinkError(f"this link ({type(self).__name__}) cannot reboot the vehicle; use the pymavlink link")
+
     def send_landing_target(self, target: LandingTarget) -> None:
         """Send one LANDING_TARGET (companion/link/landing_target.py) for the vehicle's precision
         landing. A backend that cannot: LinkError."""

@@ -9,6 +9,8 @@ Everything here is data and pure functions: the session turns the steps into lin
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
@@ -60,6 +62,9 @@ class Dialect:
     """The mode that lands on the companion's LANDING_TARGET (companion/link/landing_target.py)."""
     precland_params: tuple[tuple[str, float], ...] = ()
     """Parameters set (PARAM_SET) before entering ``precland_mode``."""
+    precland_params_at_boot: bool = False
+    """``precland_params`` take effect only at boot: before the run's first arming they are read,
+    and if not yet set, set and made effective by a reboot (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN)."""
     landing_target_frame: int = MAV_FRAME_LOCAL_NED
     """The LANDING_TARGET frame this autopilot reads positions in (it refuses the others)."""
 
@@ -68,6 +73,16 @@ class Dialect:
 
     def is_hold(self, mode: str) -> bool:
         return mode == self.hold_mode
+
+    def precland_reboot_needed(self, current: Mapping[str, float | None]) -> bool:
+        """Whether the vehicle must reboot for its precision landing: its boot-time parameters
+        (``current``, as read; None: unanswered) are not all ``precland_params`` yet."""
+        if not self.precland_params_at_boot:
+            return False
+        return not all(
+            (now := current.get(name)) is not None and math.isclose(now, value, abs_tol=1e-3)
+            for name, value in self.precland_params
+        )
 
     def takeoff_steps(self, alt_m: float) -> tuple[Step, ...]:
         """From the ground to hovering at ``alt_m`` above home."""
@@ -121,9 +136,12 @@ ARDUPILOT = Dialect(
     arm_hint="ArduCopter refuses to arm until its pre-arm checks pass (the EKF settles for "
     "about 40 s after boot); read its 'PreArm:' messages",
     # Precision landing: LAND with AC_PrecLand enabled and its MAVLink (companion) backend; it reads
-    # LANDING_TARGET positions only in BODY_FRD (AC_PrecLand_Companion::handle_msg).
+    # LANDING_TARGET positions only in BODY_FRD (AC_PrecLand_Companion::handle_msg). AC_PrecLand
+    # makes its backend at boot: PLND_* set at run time lands vertically ("PrecLand: Failsafe
+    # Measures") until a reboot.
     precland_mode="LAND",
     precland_params=(("PLND_ENABLED", 1.0), ("PLND_TYPE", 1.0)),
+    precland_params_at_boot=True,
     landing_target_frame=MAV_FRAME_BODY_FRD,
 )
 

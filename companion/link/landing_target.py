@@ -30,8 +30,14 @@ how both learn the target is lost (PX4: PLD_BTOUT; ArduPilot: 1 s without a meas
 
 Asking for the landing (companion/link/dialect.py ``precland_*``): PX4: MAV_CMD_DO_SET_MODE with
 param1 = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (| SAFETY_ARMED), param2 = 4 (AUTO), param3 = 9
-(PRECLAND); the HEARTBEAT then shows custom mode ``4 << 16 | 9 << 24``. ArduPilot: PARAM_SET
-``PLND_ENABLED`` = 1 and ``PLND_TYPE`` = 1 (MAVLink), each echoed by PARAM_VALUE, then
+(PRECLAND); the HEARTBEAT then shows custom mode ``4 << 16 | 9 << 24``; nothing before.
+ArduPilot makes its precision landing at boot (set at run time, LAND lands straight down:
+"PrecLand: Failsafe Measures"), so before the run's first arming the companion reads
+``PLND_ENABLED`` and ``PLND_TYPE``; unless both are 1 it sets them (PARAM_SET, each echoed by
+PARAM_VALUE), sends MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN param1 = 1 while disarmed (never armed),
+waits for the autopilot's HEARTBEAT to stop and come back (LinkTimeout saying which did not),
+and asks for its streams again (ArduCopter boots sending HEARTBEAT and SYS_STATUS only). At the
+hand-over: PARAM_SET ``PLND_ENABLED`` = 1 and ``PLND_TYPE`` = 1 again (echo checked), then
 MAV_CMD_DO_SET_MODE to LAND (custom mode 9). In lockstep the companion still answers every frame
 with its usual SET_POSITION_TARGET_LOCAL_NED echo (zero body velocity), sent after the frame's
 LANDING_TARGET: the SITL advances on it and does not fly it outside OFFBOARD / GUIDED.

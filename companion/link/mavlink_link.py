@@ -175,6 +175,11 @@ class MavlinkLink(VehicleLink):
     def land(self) -> None:
         self._command(mavlink.MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, NAN, NAN, NAN, NAN], "land")
 
+    def reboot(self) -> None:
+        """Sent once: a lost ACK is not resent, since the vehicle may already be rebooting."""
+        self._command(mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, [1.0], "reboot",
+                      "autopilots reboot only while disarmed: land and disarm first", retries=0)
+
     def request_rates(self, rates_hz: Mapping[str, float] | None = None) -> dict[str, str]:
         """Send MAV_CMD_SET_MESSAGE_INTERVAL per message; a refusal is reported, not raised."""
         rates_hz = self.default_rates_hz() if rates_hz is None else rates_hz

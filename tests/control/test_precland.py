@@ -18,7 +18,7 @@ from companion.control.arbiter import Phase
 from companion.control.precland import PrecisionLander
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
-from companion.errors import CommandRejected
+from companion.errors import CommandRejected, LinkTimeout
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.link.dialect import ARDUPILOT, PX4
 from companion.link.landing_target import (
@@ -108,6 +108,118 @@ def test_a_parameter_the_vehicle_does_not_confirm_stops_before_the_mode(echo: di
     with pytest.raises(CommandRejected, match="PLND_ENABLED"):
         PrecisionLander(link, None, detector()).engage(ARDUPILOT)  # type: ignore[arg-type]
     assert all(kind != "mode" for kind, _ in link.calls)
+
+
+class FakeClock:
+    """Time that passes only when the lander sleeps."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.now_s += seconds
+
+
+class BootingLink(RecordingLink):
+    """A vehicle whose parameters read back as ``params``; asked to reboot, its HEARTBEAT stops
+    for ``silent_s`` (None: it never stops; ``back`` False: it never returns)."""
+
+    def __init__(self, params: dict[str, float], armed: bool = False, silent_s: float | None = 12.0,
+                 back: bool = True) -> None:
+        super().__init__()
+        self.params, self.armed = dict(params), armed
+        self.silent_s, self.back = silent_s, back
+        self.clock = FakeClock()
+        self._rebooted_s: float | None = None
+
+    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+        self.calls.append(("read", name))
+        return self.params.get(name)
+
+    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+        self.params[name] = value
+        return super().set_param(name, value, timeout_s)
+
+    def _heartbeat_s(self) -> float:
+        """1 Hz HEARTBEATs, none from the reboot for ``silent_s``."""
+        now, start = self.clock.now_s, self._rebooted_s
+        if start is None or self.silent_s is None or now < start:
+            return math.floor(now)
+        if now < start + self.silent_s or not self.back:
+            return start
+        return math.floor(now)
+
+    def state(self):  # type: ignore[no-untyped-def]
+        from dataclasses import replace
+
+        return replace(snapshot(), armed=self.armed, autopilot="ARDUPILOTMEGA", mode="STABILIZE",
+                       heartbeat_s=self._heartbeat_s())
+
+    def link_alive(self) -> bool:
+        return self.clock.now_s - self._heartbeat_s() < 1.5
+
+    def reboot(self) -> None:
+        assert not self.armed, "a reboot asked while armed"
+        self.calls.append(("reboot", None))
+        self._rebooted_s = self.clock.now_s
+
+    def request_rates(self, rates_hz: dict[str, float] | None = None) -> dict[str, str]:
+        self.calls.append(("rates", None))
+        return {}
+
+
+def booting_lander(link: BootingLink) -> PrecisionLander:
+    return PrecisionLander(link, None, detector(), clock=link.clock, sleep=link.clock.sleep)  # type: ignore[arg-type]
+
+
+def test_ardupilot_plnd_off_is_set_then_rebooted_while_disarmed_then_streams_asked_again() -> None:
+    link = BootingLink({"PLND_ENABLED": 0.0, "PLND_TYPE": 0.0})
+    assert booting_lander(link).prepare(ARDUPILOT) is True
+    assert link.calls == [("read", "PLND_ENABLED"), ("read", "PLND_TYPE"), ("param", ("PLND_ENABLED", 1.0)),
+                          ("param", ("PLND_TYPE", 1.0)), ("reboot", None), ("rates", None)]
+
+
+def test_ardupilot_plnd_already_on_is_not_rebooted() -> None:
+    link = BootingLink({"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0})
+    assert booting_lander(link).prepare(ARDUPILOT) is False
+    assert link.calls == [("read", "PLND_ENABLED"), ("read", "PLND_TYPE")]
+
+
+def test_px4_needs_no_reboot_and_is_not_even_asked() -> None:
+    link = BootingLink({})
+    assert booting_lander(link).prepare(PX4) is False
+    assert link.calls == []
+
+
+def test_an_armed_vehicle_is_never_rebooted() -> None:
+    link = BootingLink({"PLND_ENABLED": 1.0, "PLND_TYPE": 0.0}, armed=True)
+    with pytest.raises(CommandRejected, match="disarm"):
+        booting_lander(link).prepare(ARDUPILOT)
+    assert all(kind in ("read",) for kind, _ in link.calls), link.calls
+
+
+def test_a_reboot_that_never_goes_silent_says_so() -> None:
+    link = BootingLink({"PLND_TYPE": 0.0}, silent_s=None)
+    with pytest.raises(LinkTimeout, match="kept coming"):
+        booting_lander(link).prepare(ARDUPILOT)
+
+
+def test_a_heartbeat_that_does_not_come_back_says_so() -> None:
+    link = BootingLink({"PLND_TYPE": 0.0}, back=False)
+    with pytest.raises(LinkTimeout, match="did not come back"):
+        booting_lander(link).prepare(ARDUPILOT)
+    assert ("rates", None) not in link.calls
+
+
+@pytest.mark.parametrize(("current", "needed"), [({"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0}, False),
+                                                  ({"PLND_ENABLED": 1.0, "PLND_TYPE": 2.0}, True),
+                                                  ({"PLND_ENABLED": 1.0, "PLND_TYPE": None}, True)])
+def test_the_dialect_decides_the_reboot(current: dict[str, float | None], needed: bool) -> None:
+    assert ARDUPILOT.precland_reboot_needed(current) is needed
+    assert PX4.precland_reboot_needed(current) is False
 
 
 @pytest.mark.parametrize(("dialect", "frame"), [(PX4, MAV_FRAME_LOCAL_NED), (ARDUPILOT, MAV_FRAME_BODY_FRD)])
