@@ -574,12 +574,9 @@ class EpisodeRunner:
                     outcome = "link_lost"
                     break
                 snap = self._ensure_offboard(snap)
-            if step > 0 and self._touched_down(snap):
-                outcome = "touchdown"
-                break
-            ended = self.p.control.end_requested() if self.p.control is not None else None
-            if ended is not None:
-                outcome = ended
+            stop = self._stop_reason(step, snap)
+            if stop is not None:
+                outcome = stop
                 break
             steps = step + 1
             outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
@@ -590,6 +587,12 @@ class EpisodeRunner:
                 self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
             snap = self._next_snapshot()
         return outcome, version, steps, snap
+
+    def _stop_reason(self, step: int, snap: VehicleSnapshot) -> str | None:
+        """Why the episode ends before this step: a touchdown, or an end asked for from outside."""
+        if step > 0 and self._touched_down(snap):
+            return "touchdown"
+        return self.p.control.end_requested() if self.p.control is not None else None
 
     def _fly_precland(self, lander: PrecisionLander, snap: VehicleSnapshot | None
                       ) -> tuple[str, int | None, int, VehicleSnapshot | None]:
@@ -604,12 +607,9 @@ class EpisodeRunner:
                 snap = self._recover_link()
                 if snap is None:
                     return "link_lost", None, steps, None
-            if step > 0 and self._touched_down(snap):
-                outcome = "touchdown"
-                break
-            ended = self.p.control.end_requested() if self.p.control is not None else None
-            if ended is not None:
-                outcome = ended
+            stop = self._stop_reason(step, snap)
+            if stop is not None:
+                outcome = stop
                 break
             steps = step + 1
             lander.feed(snap, self.p.lockstep, self.dialect)

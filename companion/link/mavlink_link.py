@@ -330,31 +330,30 @@ class MavlinkLink(VehicleLink):
         PARAM_VALUE of that name comes (None after ``timeout_s``)."""
         self._require_alive()
         tsys, tcomp = self._target()
-        waiter = self._io.waiters.add(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
-        deadline = self._clock() + timeout_s
-        try:
-            while (remaining := deadline - self._clock()) > 0:
-                self._io.send(self._io.mav.param_request_read_encode(tsys, tcomp, name.encode(), -1))
-                reply = waiter.get(min(self.cfg.command_timeout_s, remaining))
-                if reply is not None and math.isfinite(reply.param_value):
-                    return float(reply.param_value)
-        finally:
-            self._io.waiters.remove(waiter)
-        log.info("the vehicle did not answer PARAM_REQUEST_READ(%s) within %.1f s", name, timeout_s)
-        return None
+        value = self._param_exchange(name, lambda: self._io.mav.param_request_read_encode(tsys, tcomp, name.encode(), -1),
+                                     timeout_s, lambda reply: math.isfinite(reply.param_value))
+        if value is None:
+            log.info("the vehicle did not answer PARAM_REQUEST_READ(%s) within %.1f s", name, timeout_s)
+        return value
 
     def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
         """PARAM_SET, sent again every ``command_timeout_s`` until PARAM_VALUE echoes the name."""
         self._require_alive()
         tsys, tcomp = self._target()
+        return self._param_exchange(name, lambda: self._io.mav.param_set_encode(
+            tsys, tcomp, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32), timeout_s, lambda reply: True)
+
+    def _param_exchange(self, name: str, request: Callable[[], Any], timeout_s: float,
+                        accept: Callable[[Any], bool]) -> float | None:
+        """Send ``request()`` every ``command_timeout_s`` until a PARAM_VALUE of ``name`` that
+        ``accept`` takes arrives: its value, or None after ``timeout_s``."""
         waiter = self._io.waiters.add(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
         deadline = self._clock() + timeout_s
         try:
             while (remaining := deadline - self._clock()) > 0:
-                self._io.send(self._io.mav.param_set_encode(
-                    tsys, tcomp, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32))
+                self._io.send(request())
                 reply = waiter.get(min(self.cfg.command_timeout_s, remaining))
-                if reply is not None:
+                if reply is not None and accept(reply):
                     return float(reply.param_value)
         finally:
             self._io.waiters.remove(waiter)
