@@ -89,20 +89,20 @@ def _niceness(nice: int) -> Iterator[None]:
             os.setpriority(os.PRIO_PROCESS, 0, before)
 
 
+def _realtime_if_marked(request: pytest.FixtureRequest) -> contextlib.AbstractContextManager[None]:
+    marked = request.node.get_closest_marker("realtime") is not None
+    return _niceness(REALTIME_NICE) if marked else contextlib.nullcontext()
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _realtime_module(request: pytest.FixtureRequest) -> Iterator[None]:
     """Modules marked ``realtime`` (their module-scoped vehicles start inside this)."""
-    if request.node.get_closest_marker("realtime") is None:
-        yield
-        return
-    with _niceness(REALTIME_NICE):
+    with _realtime_if_marked(request):
         yield
 
 
 @pytest.fixture(autouse=True)
 def _realtime_test(request: pytest.FixtureRequest) -> Iterator[None]:
-    if request.node.get_closest_marker("realtime") is None:
-        yield
-        return
-    with _niceness(REALTIME_NICE):
+    """Single tests marked ``realtime``."""
+    with _realtime_if_marked(request):
         yield
