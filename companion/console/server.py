@@ -9,8 +9,10 @@ gamepad's state, at the page's send rate) and ``command`` (:data:`messages.COMMA
 
 One pilot at a time, explicitly: a page asks for the role and is told it has it; the role moves
 only when the pilot gives it up or its socket closes (its input falls silent at once, see
-:class:`BrowserInput`, and every page is told). Other pages watch: their input and commands are
-refused with an error, never dropped silently. Every message the console does not act on is
+:class:`BrowserInput`, and every page is told). A pilot whose link dropped gets the role back when
+the same tab reconnects within :data:`~companion.console.roles.GRACE_S`, unless another page took
+it meanwhile (:class:`~companion.console.roles.PilotSeat`). Other pages watch: their input and
+commands are refused with an error, never dropped silently. Every message the console does not act on is
 logged with its reason (:mod:`companion.console.messages`); none can close the socket.
 """
 
@@ -30,6 +32,7 @@ from aiohttp import WSMsgType, web
 from companion.console import messages
 from companion.console.access import LOOPBACK_NAMES, host_ok, origin_ok, page_url, token_ok
 from companion.console.messages import RefusalLog, Refused
+from companion.console.roles import PilotSeat, tab_key
 from companion.console.session import ConsoleSession
 from companion.errors import ColError
 
@@ -39,6 +42,10 @@ STATIC_FILES = {"index.html": "text/html", "console.js": "text/javascript", "con
 STATUS_PERIOD_S = 0.25
 MAX_QUEUED = 400  # JSON messages waiting for one page; beyond: the page is dropped
 MAX_FRAME_BYTES = 1 << 20  # aiohttp closes a socket over this; our own limit (8 KiB) answers below it
+# Ping every 10 s; aiohttp closes a socket whose pong is 5 s late. Finding a dead page is not what
+# keeps the vehicle safe (the pilot's input ages out in manual_timeout_s); a ping missed by a busy
+# browser or event loop must not cost the pilot the role, so the limit is lenient.
+HEARTBEAT_S = 10.0
 _FRAME = object()  # marker in a client's queue: send its newest frame
 
 
@@ -46,6 +53,7 @@ _FRAME = object()  # marker in a client's queue: send its newest frame
 class _Client:
     ws: web.WebSocketResponse
     page: int
+    tab: str | None = None  # the tab key the page sent (console/roles.py), if any
     queue: asyncio.Queue[object] = field(default_factory=asyncio.Queue)
     frame: bytes | None = None
     frame_queued: bool = False
@@ -79,14 +87,16 @@ class ConsoleServer:
     """Owns the aiohttp application, the connected pages, the pilot role and the session's outlet."""
 
     def __init__(self, make_session: Any, token: str | None = None,
-                 hosts: frozenset[str] = LOOPBACK_NAMES) -> None:
+                 hosts: frozenset[str] = LOOPBACK_NAMES, seat: PilotSeat | None = None) -> None:
         """``make_session(publish, publish_frame)`` builds the :class:`ConsoleSession`;
         ``token``: what every request must carry as ``?token=``; ``hosts``: the names a request's
-        ``Host`` may carry (console/access.py)."""
+        ``Host`` may carry (console/access.py); ``seat``: the role kept for a pilot whose link
+        dropped (default: :data:`~companion.console.roles.GRACE_S` on the monotonic clock)."""
         self.token, self.hosts = token, hosts
         self.loop: asyncio.AbstractEventLoop | None = None
         self.clients: list[_Client] = []
         self.pilot: _Client | None = None
+        self.seat = seat if seat is not None else PilotSeat()
         self._pages = itertools.count(1)
         self.session: ConsoleSession = make_session(self.publish, self.publish_frame)
         self.app = web.Application(middlewares=[self._guard])
@@ -166,13 +176,14 @@ class ConsoleServer:
         return web.Response(text=(STATIC / name).read_text(), content_type=STATIC_FILES[name])
 
     async def _ws(self, request: web.Request) -> web.WebSocketResponse:
-        ws = web.WebSocketResponse(heartbeat=5.0, max_msg_size=MAX_FRAME_BYTES)
+        ws = web.WebSocketResponse(heartbeat=HEARTBEAT_S, max_msg_size=MAX_FRAME_BYTES)
         await ws.prepare(request)
-        client = _Client(ws, next(self._pages))
+        client = _Client(ws, next(self._pages), tab_key(request.query.get("tab")))
         client.refusals = RefusalLog(str(client.page), log)
         self.clients.append(client)
         sender = asyncio.create_task(client.send_loop())
         client.offer_json(json.dumps({**self.session.hello(), "role": self._role_of(client)}))
+        self._pilot_returns(client)
         try:
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
@@ -207,6 +218,7 @@ class ConsoleServer:
                               "gives it up or loses its link")
             if self.pilot is None:
                 self.pilot = client
+                self.seat.release()
                 self.session.human.connected()
                 log.info("console page %d is the pilot", client.page)
                 self._broadcast(json.dumps({"type": "notice", "text": f"page {client.page} is the pilot"}))
@@ -216,13 +228,31 @@ class ConsoleServer:
         self._tell_roles()
 
     def _pilot_gone(self, client: _Client, how: str) -> None:
-        """The pilot left: its input is silent at once (the vehicle holds if the person was flying)."""
+        """The pilot left: its input is silent at once (the vehicle holds if the person was flying);
+        a lost link keeps the role for the same tab for a while, giving it up does not."""
         self.pilot = None
         self.session.human.disconnected()
+        kept = how == "lost its link" and self.seat.keep_for(client.tab, client.page)
         text = (f"the pilot's page {client.page} {how}: nobody flies from a page; if the person was "
                 "flying, the vehicle holds position")
+        if kept:
+            text += (f"; the role is kept for that tab for {self.seat.grace_s:g} s "
+                     "(any page may still take it)")
         log.warning("%s", text)
         self._broadcast(json.dumps({"type": "notice", "text": text, "pilot_lost": True}))  # in the loop: before the roles
+        self._tell_roles()
+
+    def _pilot_returns(self, client: _Client) -> None:
+        """A page connected: the pilot again if it is the tab whose link dropped moments ago and
+        nobody took the role meanwhile."""
+        was = self.seat.returns(client.tab)
+        if was is None or self.pilot is not None:
+            return
+        self.pilot = client
+        self.session.human.connected()
+        text = f"page {client.page} is the pilot again: its link came back (it was page {was})"
+        log.info("%s", text)
+        self._broadcast(json.dumps({"type": "notice", "text": text}))
         self._tell_roles()
 
     # ----- messages from a page ------------------------------------------------------------------

@@ -15,6 +15,7 @@ from colcommon import numeric_env as ne
 
 ROOT = Path(__file__).resolve().parents[2]
 GRID = ROOT / "results" / "paper-grid"
+HARDWARE = ("cpu_model:", "cpu_flags:", "numpy_dispatch:")  # what the CPU has, not what the run asked for
 
 
 def cheapest_trial(results_dir: Path) -> str:
@@ -58,4 +59,7 @@ def test_a_committed_trial_reruns_byte_for_byte() -> None:
                          capture_output=True, text=True, timeout=1200)
     summary = json.loads(out.stdout.strip().splitlines()[-1])
     assert out.returncode == 0 and summary["identical"] == 1, out.stdout + out.stderr[-2000:]
-    assert summary["environment_differences"] == []
+    # The software environment is the recorded one; on another CPU its own facts differ (and are
+    # reported): the committed grid was made on an Intel Xeon with AMX and reruns on an AMD EPYC.
+    software = [d for d in summary["environment_differences"] if not d.startswith(HARDWARE)]
+    assert software == [], summary["environment_differences"]

@@ -23,8 +23,26 @@ const frames = new Map();  // frame number -> ImageBitmap
 const keys = new Set();
 
 // ----- socket ------------------------------------------------------------------------------
+// This tab's key, kept across reloads of the tab: a pilot whose link drops gets the role back
+// when the same tab reconnects soon enough (companion/console/roles.py).
+const TAB = (() => {
+  let key = null;
+  try { key = sessionStorage.getItem("col-tab"); } catch (e) { /* storage off: a key per load */ }
+  if (!/^[0-9a-f]{32}$/.test(key || "")) {
+    key = Array.from(crypto.getRandomValues(new Uint8Array(16)), (b) => b.toString(16).padStart(2, "0")).join("");
+    try { sessionStorage.setItem("col-tab", key); } catch (e) { /* ignored */ }
+  }
+  return key;
+})();
+
+function socketUrl() {
+  const query = new URLSearchParams(location.search);  // ?token=... when the console asks for one
+  query.set("tab", TAB);
+  return `ws://${location.host}/ws?${query}`;
+}
+
 function connect() {
-  ws = new WebSocket(`ws://${location.host}/ws${location.search}`);  // ?token=... when the console asks for one
+  ws = new WebSocket(socketUrl());
   ws.binaryType = "arraybuffer";
   ws.onopen = () => { C.connected = true; setLink(true); };
   ws.onclose = () => {
