@@ -365,20 +365,21 @@ def experiment(
     trials: Annotated[int | None, typer.Option("--trials", min=1, help="with --verify: how many trials to rerun (default 2)")] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="with --verify: which trials are chosen (default: at random)")] = None,
     trial: Annotated[list[str] | None, typer.Option("--trial", help="with --verify: rerun this trial (its key, e.g. P3-col-04-s3; repeat for more) instead of --trials at random")] = None,
+    keep: Annotated[Path | None, typer.Option("--keep", help="with --verify: keep the rerun trials' folders (dataset, checkpoints, evaluation episodes) in this new or empty folder")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's experiment with synthetic participants: every trial of the grid, then a
     report (Markdown table beside the paper's numbers, PNG plots) in the results folder."""
     _setup(verbose)
     if verify is not None:
-        _verify(verify, trials or 2, seed, trial or [])
+        _verify(verify, trials or 2, seed, trial or [], keep)
         return
     from companion.experiment.grid import load_experiment
     from companion.experiment.report import write_report
     from companion.experiment.runner import run_grid
 
     try:
-        _refuse_verify_options(trials, seed, trial)
+        _refuse_verify_options(trials, seed, trial, keep)
         _check_backend(backend, address)  # before anything is written into --out
         path = config or find_config("experiment_quick.toml" if quick else "experiment.toml")
         out_dir = out or Path("runs") / path.stem
@@ -395,10 +396,11 @@ def experiment(
     typer.echo(json.dumps({"trials": len(results), "report": str(report), "results": str(out_dir / "results.jsonl")}))
 
 
-def _refuse_verify_options(trials: int | None, seed: int | None, trial: list[str] | None) -> None:
-    """``--trials``, ``--seed`` and ``--trial`` choose what ``--verify`` reruns: given without it
-    they would be ignored, and the whole grid would run instead of what was asked for."""
-    options = (("--trials", trials), ("--seed", seed), ("--trial", trial or None))
+def _refuse_verify_options(trials: int | None, seed: int | None, trial: list[str] | None,
+                           keep: Path | None = None) -> None:
+    """``--trials``, ``--seed``, ``--trial`` and ``--keep`` say what ``--verify`` reruns and keeps:
+    given without it they would be ignored, and the whole grid would run instead of what was asked for."""
+    options = (("--trials", trials), ("--seed", seed), ("--trial", trial or None), ("--keep", keep))
     given = [name for name, value in options if value is not None]
     if given:
         raise ConfigError(f"{', '.join(given)} only apply with --verify RESULTS_DIR (which trials to rerun); "
@@ -433,15 +435,21 @@ def find_config(name: str) -> Path:
     return found
 
 
-def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str]) -> None:
+def _verify(results_dir: Path, trials: int, seed: int | None, keys: list[str], keep: Path | None = None) -> None:
     """``col experiment --verify``: exit 1 when a rerun trial writes another line, saying what
-    in the numeric environment differs from the one the results were made in."""
+    in the numeric environment differs from the one the results were made in. ``keep``: the
+    reruns' folders stay there (a new or empty folder), else they go with a temporary one."""
+    import contextlib
     import tempfile
 
     from companion.experiment.verify import environment_differences, verify
 
     try:
-        with tempfile.TemporaryDirectory(prefix="col-verify-") as work:
+        if keep is not None and keep.exists() and (not keep.is_dir() or any(keep.iterdir())):
+            raise ConfigError(f"--keep {keep}: give a new or empty folder (the reruns' folders go there)")
+        with (contextlib.nullcontext(str(keep)) if keep is not None
+              else tempfile.TemporaryDirectory(prefix="col-verify-")) as work:
+            Path(work).mkdir(parents=True, exist_ok=True)
             checks = verify(results_dir, trials, Path(work), seed, keys)
     except ColError as exc:
         raise _fail(exc) from None

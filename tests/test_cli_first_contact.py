@@ -83,13 +83,23 @@ def no_grid(monkeypatch: pytest.MonkeyPatch) -> list[object]:
     return calls
 
 
-@pytest.mark.parametrize("options", [["--seed", "0"], ["--trials", "5"], ["--trial", "P1-col-04-s0"]])
+@pytest.mark.parametrize("options", [["--seed", "0"], ["--trials", "5"], ["--trial", "P1-col-04-s0"], ["--keep", "kept"]])
 def test_verify_only_options_without_verify_are_refused(tmp_path: Path, no_grid: list[object],
                                                         options: list[str]) -> None:
     """Silently ignored, they ran the whole grid instead of the few trials asked for."""
     done = invoke("experiment", "--quick", "--out", str(tmp_path / "out"), *options)
     assert done.exit_code == 2 and f"{options[0]} only apply with --verify" in done.output, done.output
     assert no_grid == [] and not (tmp_path / "out").exists()
+
+
+def test_verify_keeps_its_reruns_only_in_a_new_or_empty_folder(tmp_path: Path) -> None:
+    """Nothing of a folder that holds something is mixed with, or lost to, the reruns."""
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "mine.txt").write_text("keep me")
+    done = invoke("experiment", "--verify", "results/paper-grid", "--trial", "P1-col-04-s0", "--keep", str(full))
+    assert done.exit_code == 2 and "give a new or empty folder" in done.output, done.output
+    assert [p.name for p in full.iterdir()] == ["mine.txt"]
 
 
 def test_an_unknown_backend_is_refused_before_anything_is_written(tmp_path: Path, no_grid: list[object]) -> None:
