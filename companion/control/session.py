@@ -11,6 +11,7 @@ after ``max_steps``.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import math
 import time
@@ -48,6 +49,17 @@ HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
 OFFBOARD_ATTEMPTS = 3
 RETRY_STREAM_FRAMES = 5  # after a refusal: half a second of setpoints, so a lossy link delivers some  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
+
+
+def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate_hz: float, lockstep: bool) -> bool:
+    """Whether a precision-landing episode has had its time: ``max_steps`` control periods.
+    In lockstep a step is a control period (the count decides, as for every other episode); in
+    real time a step is a camera frame (LANDING_TARGET goes out at the camera's rate, 30 Hz for a
+    rendered camera), so the vehicle's clock decides, and the step count only bounds a clock that
+    stands still (at 20 frames per control period)."""
+    if lockstep:
+        return step >= max_steps
+    return elapsed_ms >= 1000.0 * max_steps / control_rate_hz or step >= 20 * max_steps
 
 
 class PolicyRunner(Protocol):
@@ -602,11 +614,17 @@ class EpisodeRunner:
         with self._hold_stream_while_asking():  # PX4 leaves OFFBOARD only once the ACK is in
             lander.engage(self.dialect)
         outcome, steps = "timeout", 0
-        for step in range(self.p.cfg.max_steps):
+        started_ms = snap.time_boot_ms if snap is not None else None
+        for step in itertools.count():
             if snap is None:
                 snap = self._recover_link()
                 if snap is None:
                     return "link_lost", None, steps, None
+            if started_ms is None:
+                started_ms = snap.time_boot_ms
+            if precland_time_is_up(step, snap.time_boot_ms - started_ms, self.p.cfg.max_steps,
+                                   self.p.cfg.control_rate_hz, self.p.lockstep):
+                break
             stop = self._stop_reason(step, snap)
             if stop is not None:
                 outcome = stop

@@ -329,3 +329,16 @@ def test_the_precland_pilot_needs_the_board_on_the_pad(tmp_path) -> None:  # typ
     opts = precland_options(RunOptions(pilot="precland", condition="col", config_path=CONFIGS / "precland.toml"))
     assert (opts.condition, opts.learn, opts.record) == ("eval", False, False)
     assert precland_options(RunOptions(pilot="expert")) == RunOptions(pilot="expert")
+
+
+def test_a_precland_episode_lasts_max_steps_control_periods_whatever_the_camera_rate() -> None:
+    """Real time: steps are camera frames (30 Hz for a rendered camera), so 500 of them were
+    16.7 s and real PX4 timed out before its approach was done; the vehicle's clock decides."""
+    from companion.control.session import precland_time_is_up
+
+    limit_ms = 500 / 10.5 * 1000  # 47.6 s
+    assert not precland_time_is_up(1400, int(limit_ms) - 1, 500, 10.5, lockstep=False)  # 1,400 frames at 30 Hz
+    assert precland_time_is_up(1429, int(limit_ms) + 1, 500, 10.5, lockstep=False)
+    assert precland_time_is_up(10_000, 0, 500, 10.5, lockstep=False)  # a clock that stands still is bounded
+    assert not precland_time_is_up(499, 10**9, 500, 10.5, lockstep=True)  # lockstep: the count, as before
+    assert precland_time_is_up(500, 0, 500, 10.5, lockstep=True)

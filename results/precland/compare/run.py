@@ -1,0 +1,184 @@
+"""The operator's baseline against the learned policies: the autopilot's own precision landing,
+the scripted expert and the CoL@20 / Demo@20 policies on the experiment's held-out starts.
+The plan (arms, levels, endpoints, analysis) is docs/baselines.md, "The operator's baseline",
+written before these runs. Steps, each resumable on its own (a step whose output exists is skipped):
+
+    python results/precland/compare/run.py configs              # the task's config files, from configs/paper.toml
+    python results/precland/compare/run.py fly precland-px4 0.2 # one arm at one level (also precland-ardupilot, expert; 0)
+    python results/precland/compare/run.py policies             # CoL@20 / Demo@20 of P1-P4 replicate 0: rerun, then level 0
+    python results/precland/compare/run.py real precland        # real PX4 SIH, rendered camera (also: real expert)
+    python results/precland/compare/run.py summarise            # summary.json and table.md from the episodes
+
+Run folders go to runs/precland-compare/; what is committed is each arm's episodes.jsonl (in
+episodes/), the rerun policies' result lines (policies.jsonl) and the summaries.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[2]
+RUNS = ROOT / "runs" / "precland-compare"
+EPISODES = HERE / "episodes"
+CONFIGS = HERE / "configs"
+GRID = ROOT / "results" / "paper-grid-pinned"
+LEVELS = ("0.2", "0")
+STARTS, FIRST_START = 100, 100_000
+REAL_STARTS = 20
+PARTICIPANTS = ("P1", "P2", "P3", "P4")
+POLICIES = tuple(f"{p}-{c}-20-s0" for c in ("col", "demo") for p in PARTICIPANTS)
+ARMS = ("precland-px4", "precland-ardupilot", "expert")
+
+ARUCO = '\n[sitl.camera]\npad_marker = "aruco"  # the ArUco board on the pad (sitl/pad_marker.py)\n'
+ARDUPILOT = '\n[sitl.personality]\nautopilot = "ardupilot"\n'
+REAL = """# Real PX4 SIH: the pad world rendered from its telemetry, the pad on its own ground; the
+# experiment's start geometry and episode length (configs/default.toml), no disturbance.
+[companion.session]
+pad_ned_m = [0.0, 0.0, 0.0]
+
+[companion.perception]
+camera = "render"
+
+[sitl.world]
+vehicle_height_m = 0.0
+"""
+
+
+def col() -> str:
+    return str(Path(sys.executable).with_name("col"))
+
+
+def config_name(arm: str, level: str) -> Path:
+    kind = {"precland-px4": "precland-px4", "precland-ardupilot": "precland-ardupilot"}.get(arm, "colour-pad")
+    return CONFIGS / f"{kind}-level-{level}.toml"
+
+
+def write_configs() -> None:
+    """configs/paper.toml at level 0.2 and 0, with the board (and the ArduPilot personality)."""
+    paper = (ROOT / "configs" / "paper.toml").read_text()
+    assert paper.count("level = 0.2") == 1, "configs/paper.toml's disturbance level moved"
+    CONFIGS.mkdir(parents=True, exist_ok=True)
+    for level in LEVELS:
+        base = paper if level == "0.2" else paper.replace("level = 0.2", "level = 0.0")
+        config_name("expert", level).write_text(base)
+        config_name("precland-px4", level).write_text(base + ARUCO)
+        config_name("precland-ardupilot", level).write_text(base + ARUCO + ARDUPILOT)
+    (CONFIGS / "real-px4.toml").write_text(REAL + ARUCO)
+
+
+def _run(cmd: list[str], log: Path) -> None:
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("w") as out:
+        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=ROOT)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}); see {log}")
+
+
+def _keep(run_dir: Path, name: str) -> None:
+    EPISODES.mkdir(parents=True, exist_ok=True)
+    shutil.copy(run_dir / "episodes.jsonl", EPISODES / f"{name}.jsonl")
+
+
+def fly(arm: str, level: str) -> None:
+    name = f"{arm}-level-{level}"
+    if (EPISODES / f"{name}.jsonl").exists():
+        return
+    run_dir = RUNS / name
+    shutil.rmtree(run_dir, ignore_errors=True)
+    pilot = ["--pilot", "expert", "--condition", "demo", "--no-learn"] if arm == "expert" else ["--pilot", "precland"]
+    _run([col(), "fly", *pilot, "--config", str(config_name(arm, level)), "--episodes", str(STARTS),
+          "--seed", str(FIRST_START), "--run-dir", str(run_dir), "--no-pictures"], RUNS / f"{name}.log")
+    _keep(run_dir, name)
+
+
+def policies() -> None:
+    """Rerun the 8 trials from the pinned grid (their lines must be the committed ones), keep
+    their level-0.2 evaluation, and fly each final policy on the level-0 starts."""
+    kept = RUNS / "policies"
+    if not (HERE / "policies.jsonl").exists():
+        shutil.rmtree(kept, ignore_errors=True)
+        cmd = [col(), "experiment", "--verify", str(GRID), "--keep", str(kept)]
+        for key in POLICIES:
+            cmd += ["--trial", key]
+        log = RUNS / "policies-verify.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with log.open("w") as out:
+            done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=ROOT)
+        lines = log.read_text().splitlines()
+        verdict = json.loads(lines[-1])
+        verdict["per_trial"] = [ln for ln in lines if ln.split(":")[0] in POLICIES]
+        verdict["exit_code"] = done.returncode
+        (HERE / "policies.jsonl").write_text(json.dumps(verdict) + "\n")
+    for key in POLICIES:
+        trial = next((kept / key).glob(f"trials/{key}"))
+        if not (EPISODES / f"{key}-level-0.2.jsonl").exists():
+            shutil.copy(trial / "eval_episodes.jsonl", EPISODES / f"{key}-level-0.2.jsonl")
+        name = f"{key}-level-0"
+        if (EPISODES / f"{name}.jsonl").exists():
+            continue
+        checkpoint = next((kept / key).glob(f"trials/{key}/train/checkpoints/episode_019.npz"))  # run key = trial key at 20
+        run_dir = RUNS / name
+        shutil.rmtree(run_dir, ignore_errors=True)
+        _run([col(), "eval", str(checkpoint), "--config", str(config_name("expert", "0")), "--episodes", str(STARTS),
+              "--seed", str(FIRST_START), "--run-dir", str(run_dir), "--no-pictures"], RUNS / f"{name}.log")
+        _keep(run_dir, name)
+
+
+def real(arm: str) -> None:
+    from companion.testing.autopilots import find_autopilots, start_px4
+
+    name = f"real-px4-{arm}"
+    if (EPISODES / f"{name}.jsonl").exists():
+        return
+    root, why = find_autopilots()
+    if root is None:
+        raise SystemExit(why)
+    work = Path(tempfile.mkdtemp(prefix="precland-real-"))
+    ap = start_px4(root, work / "px4")
+    run_dir = RUNS / name
+    shutil.rmtree(run_dir, ignore_errors=True)
+    pilot = ["--pilot", "expert", "--condition", "demo", "--no-learn"] if arm == "expert" else ["--pilot", "precland"]
+    try:
+        _run([col(), "fly", *pilot, "--connect", ap.connection, "--config", str(CONFIGS / "real-px4.toml"),
+              "--episodes", str(REAL_STARTS), "--seed", str(FIRST_START), "--run-dir", str(run_dir), "--no-pictures"],
+             RUNS / f"{name}.log")
+    finally:
+        ap.stop()
+    _keep(run_dir, name)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="step", required=True)
+    sub.add_parser("configs")
+    one = sub.add_parser("fly")
+    one.add_argument("arm", choices=ARMS)
+    one.add_argument("level", choices=LEVELS)
+    sub.add_parser("policies")
+    r = sub.add_parser("real")
+    r.add_argument("arm", choices=("precland", "expert"))
+    sub.add_parser("summarise")
+    args = parser.parse_args()
+    if args.step == "configs":
+        write_configs()
+    elif args.step == "fly":
+        fly(args.arm, args.level)
+    elif args.step == "policies":
+        policies()
+    elif args.step == "real":
+        real(args.arm)
+    else:
+        from summarise import main as summarise  # type: ignore[import-not-found]
+
+        summarise()
+
+
+if __name__ == "__main__":
+    main()
