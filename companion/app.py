@@ -218,13 +218,15 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
     extra = ["--signing-key", key_file] if key_file else []
     if opts.camera_rate_hz:
         extra += ["--camera-rate", str(opts.camera_rate_hz)]
-    # In lockstep the SITL and the companion take turns, so a SITL niced below the companion
-    # gains nothing and, on a machine loaded by other work, starves both (at nice 19 beside
-    # nice-10 work its frames came seconds late): it runs at the companion's priority. Nothing
-    # is lost by waiting for it either: at a load of 25-33 on 2 cores it took over 30 s to start.
+    # Our SITL runs at the companion's priority, in both clocks. In lockstep they take turns, so a
+    # SITL niced below the companion gains nothing and, on a machine loaded by other work, starves
+    # both (at nice 19 beside nice-10 work its frames came seconds late). In real time it is the
+    # vehicle, with a wall clock to keep: 10 steps below the companion (as this once was), behind
+    # a loaded machine's other work it fell behind, and the console's pilot waited minutes for an
+    # episode. Nothing is lost by waiting for it to start: at a load of 25-33 on 2 cores it took
+    # over 30 s.
     sitl = start_sitl(port, clock="lockstep" if lockstep else "realtime", config=opts.config_path,
-                      seed=opts.seed, extra_args=extra or None, nice=0 if lockstep else 10,
-                      timeout_s=120.0 if lockstep else 30.0)
+                      seed=opts.seed, extra_args=extra or None, nice=0, timeout_s=120.0)
     try:
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:

@@ -5,7 +5,8 @@ written before these runs. Steps, each resumable on its own (a step whose output
 
     python results/precland/compare/run.py configs              # the task's config files, from configs/paper.toml
     python results/precland/compare/run.py fly precland-px4 0.2 # one arm at one level (also precland-ardupilot, expert; 0)
-    python results/precland/compare/run.py policies             # CoL@20 / Demo@20 of P1-P4 replicate 0: rerun, then level 0
+    python results/precland/compare/run.py policies [--grid-run runs/paper-grid-pinned]
+                                                                # CoL@20 / Demo@20 of P1-P4 replicate 0, then level 0
     python results/precland/compare/run.py real precland        # real PX4 SIH, rendered camera (also: real expert)
     python results/precland/compare/run.py summarise            # summary.json and table.md from the episodes
 
@@ -98,32 +99,49 @@ def fly(arm: str, level: str) -> None:
     _keep(run_dir, name)
 
 
-def policies() -> None:
-    """Rerun the 8 trials from the pinned grid (their lines must be the committed ones), keep
-    their level-0.2 evaluation, and fly each final policy on the level-0 starts."""
+def policies(grid_run: Path | None) -> None:
+    """The 8 policies' folders: a trial the grid's own run folder (``grid_run``, the pinned
+    grid being run) already holds is taken from there; the others are rerun from the committed
+    pinned grid with ``--verify --keep`` (their lines must be the committed ones). Then each keeps
+    its level-0.2 evaluation (the grid's own) and flies the level-0 starts."""
     kept = RUNS / "policies"
-    if not (HERE / "policies.jsonl").exists():
-        shutil.rmtree(kept, ignore_errors=True)
-        cmd = [col(), "experiment", "--verify", str(GRID), "--keep", str(kept)]
-        for key in POLICIES:
+    folders = {key: grid_run / "trials" / key for key in POLICIES
+               if grid_run is not None and (grid_run / "trials" / key / "eval_episodes.jsonl").exists()}
+    folders.update({key: kept / key / "trials" / key for key in POLICIES
+                    if key not in folders and (kept / key / "trials" / key / "eval_episodes.jsonl").exists()})
+    committed = {json.loads(line)["trial"]["key"] for line in (GRID / "results.jsonl").read_text().splitlines()}
+    rerun = [key for key in POLICIES if key not in folders and key in committed]
+    if rerun:
+        work = RUNS / f"policies-verify-{len(list(RUNS.glob('policies-verify-*.log')))}"
+        cmd = [col(), "experiment", "--verify", str(GRID), "--keep", str(work)]
+        for key in rerun:
             cmd += ["--trial", key]
-        log = RUNS / "policies-verify.log"
+        log = work.with_suffix(".log")
         log.parent.mkdir(parents=True, exist_ok=True)
         with log.open("w") as out:
             done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=ROOT)
         lines = log.read_text().splitlines()
         verdict = json.loads(lines[-1])
-        verdict["per_trial"] = [ln for ln in lines if ln.split(":")[0] in POLICIES]
+        verdict["per_trial"] = [ln for ln in lines if ln.split(":")[0] in rerun]
         verdict["exit_code"] = done.returncode
-        (HERE / "policies.jsonl").write_text(json.dumps(verdict) + "\n")
-    for key in POLICIES:
-        trial = next((kept / key).glob(f"trials/{key}"))
+        with (HERE / "policies.jsonl").open("a") as f:
+            f.write(json.dumps(verdict) + "\n")
+        for key in rerun:
+            (kept / key).parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(str(work / key), str(kept / key))
+            folders[key] = kept / key / "trials" / key
+    missing = [key for key in POLICIES if key not in folders]
+    if missing:
+        print(f"not yet finished by the pinned grid (run this step again later): {', '.join(missing)}")
+    EPISODES.mkdir(parents=True, exist_ok=True)
+    for key in sorted(folders):
+        trial = folders[key]
         if not (EPISODES / f"{key}-level-0.2.jsonl").exists():
             shutil.copy(trial / "eval_episodes.jsonl", EPISODES / f"{key}-level-0.2.jsonl")
         name = f"{key}-level-0"
         if (EPISODES / f"{name}.jsonl").exists():
             continue
-        checkpoint = next((kept / key).glob(f"trials/{key}/train/checkpoints/episode_019.npz"))  # run key = trial key at 20
+        checkpoint = trial / "train" / "checkpoints" / "episode_019.npz"  # the run's key is the trial's at 20
         run_dir = RUNS / name
         shutil.rmtree(run_dir, ignore_errors=True)
         _run([col(), "eval", str(checkpoint), "--config", str(config_name("expert", "0")), "--episodes", str(STARTS),
@@ -161,7 +179,8 @@ def main() -> None:
     one = sub.add_parser("fly")
     one.add_argument("arm", choices=ARMS)
     one.add_argument("level", choices=LEVELS)
-    sub.add_parser("policies")
+    pol = sub.add_parser("policies")
+    pol.add_argument("--grid-run", type=Path, help="the pinned grid's run folder: trials found there are not rerun")
     r = sub.add_parser("real")
     r.add_argument("arm", choices=("precland", "expert"))
     sub.add_parser("summarise")
@@ -171,7 +190,7 @@ def main() -> None:
     elif args.step == "fly":
         fly(args.arm, args.level)
     elif args.step == "policies":
-        policies()
+        policies(args.grid_run)
     elif args.step == "real":
         real(args.arm)
     else:
