@@ -106,15 +106,23 @@ def build_human(kind: str, cfg: CompanionConfig, link: VehicleLink | None = None
         return GamepadInput(cfg.pilot)
     if kind in ("none", PRECLAND):
         return NoHuman()
-    if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2"
+    if kind.startswith("synthetic:"):  # an experiment's participant, e.g. "synthetic:P2" or "synthetic:H07"
+        from companion.inputs.operator import operator_named, operator_pilot
         from companion.inputs.synthetic import on_call_pilot, profile_named, synthetic_pilot
 
+        operator = operator_named(kind.partition(":")[2])
+        if operator is not None:  # the human operator model's participant (companion/inputs/operator.py)
+            if cfg.ask.enabled:
+                raise ConfigError("the human operator model's participants (H01, ...) do not answer requests "
+                                  "for help yet; use P1-P4 with --condition ask")
+            return operator_pilot(operator, cfg.pilot, cfg.session.control_rate_hz, cfg.session.seed)
         profile = profile_named(kind.partition(":")[2])
         if cfg.ask.enabled:  # asked for help: the participant watches only when asked
             steps = round(cfg.ask.synthetic_response_s * cfg.session.control_rate_hz)
             return on_call_pilot(profile, cfg.pilot, cfg.session.seed, steps)
         return synthetic_pilot(profile, cfg.pilot, cfg.session.seed)
-    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none, precland or synthetic:P1..P4")
+    raise ConfigError(f"unknown pilot {kind!r}; use expert, manual, gamepad, none, precland, synthetic:P1..P4 "
+                      "or synthetic:H01.. (the human operator model)")
 
 
 def attach_human(human: HumanInput, link: VehicleLink) -> None:

@@ -22,6 +22,7 @@ from pydantic import Field, field_validator
 from colcommon.configio import Section, build, read_toml, section
 from companion.config import AskConfig, CompanionConfig, LandingConfig, load_companion_config
 from companion.errors import ConfigError
+from companion.inputs.operator import operator_named
 from companion.inputs.synthetic import PROFILES
 
 TrainCondition = Literal["demo", "int", "col", "ask"]
@@ -52,9 +53,10 @@ class ExperimentConfig(Section):
     @field_validator("participants")
     @classmethod
     def _known_participants(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = [p for p in value if p not in PROFILES]
+        unknown = [p for p in value if p not in PROFILES and operator_named(p) is None]
         if unknown or not value:
-            raise ValueError(f"participants must be some of {list(PROFILES)}, got {list(value)}")
+            raise ValueError(f"participants must be some of {list(PROFILES)} or the human operator model's "
+                             f"H01, H02, ... (companion/inputs/operator.py), got {list(value)}")
         return value
 
     @field_validator("interactions")
