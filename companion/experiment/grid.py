@@ -91,8 +91,9 @@ class Trial:
     seed: int
 
     def __post_init__(self) -> None:
-        if self.participant not in PROFILES:
-            raise ConfigError(f"unknown participant {self.participant!r}; use one of {list(PROFILES)}")
+        if self.participant not in PROFILES and operator_named(self.participant) is None:
+            raise ConfigError(f"unknown participant {self.participant!r}; use one of {list(PROFILES)} "
+                              "or the human operator model's H01, H02, ...")
         if self.condition not in TRAIN_CONDITIONS:
             raise ConfigError(f"unknown condition {self.condition!r}; use one of {list(TRAIN_CONDITIONS)}")
         if self.interactions < 1 or self.seed < 0:
