@@ -346,6 +346,49 @@ def console(
         raise _fail(ColError(f"cannot serve the console on {host}:{port}: {exc}; choose another --port")) from None
 
 
+@app.command()
+def study(
+    participant: Annotated[str, typer.Option("--participant", help="the participant's id: S01, S02, ... (the number picks the counterbalanced order of conditions)")],
+    out: Annotated[Path, typer.Option("--out", help="the participant's study folder (results.jsonl, questionnaire.jsonl, trials/, practice/); run again on it to resume")],
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="experiment TOML whose task, evaluation (eval_runs, eval_seed) and learner the trials use (default: configs/paper.toml)")] = None,
+    interactions: Annotated[int, typer.Option(min=1, max=100, help="episodes per condition block (the grid's interaction count)")] = 8,
+    practice: Annotated[int, typer.Option(min=0, max=20, help="practice demonstrations before the first block (not a trial)")] = 2,
+    replicate: Annotated[int, typer.Option(min=0, help="the grid replicate whose training starts the trials fly")] = 0,
+    port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port on 127.0.0.1 (0: any free port)")] = 8765,
+    pictures: PicturesOpt = False,
+    verbose: VerboseOpt = False,
+) -> None:
+    """The paper's protocol for a real person through the console (docs/study.md): practice, then
+    Demo, Int and CoL in a counterbalanced order, each a trial written as the grid writes it
+    (its final policy flown alone on the held-out starts), a NASA-TLX after each block."""
+    _setup(verbose)
+    from companion.console.server import run_console
+    from companion.console.session import ConsoleOptions, ConsoleSession
+    from companion.console.study import ConsoleStudy
+    from companion.experiment.grid import load_experiment
+    from companion.experiment.study import StudyFolder, StudyPlan
+
+    try:
+        path = config or find_config("paper.toml")
+        setup = load_experiment(path)
+        folder = StudyFolder(out, StudyPlan(participant, interactions, practice, replicate)).open()
+        conducted = ConsoleStudy(folder, setup)
+        opts = ConsoleOptions(run_dir=out / "practice", config_path=path, pictures=pictures)
+
+        def ready(url: str) -> None:
+            typer.echo(f"CONSOLE {url}", err=False)
+            typer.echo(f"open {url} in a browser: participant {participant}, conditions in the order "
+                       f"{', '.join(folder.plan.order)}; the study writes to {out}; Ctrl-C stops (run again to resume)",
+                       err=True)
+
+        run_console(lambda publish, frame: ConsoleSession(setup.companion, opts, publish, frame, conducted),
+                    "127.0.0.1", port, ready)
+    except ColError as exc:
+        raise _fail(exc) from None
+    except OSError as exc:
+        raise _fail(ColError(f"cannot serve the study's console on 127.0.0.1:{port}: {exc}; choose another --port")) from None
+
+
 def _read_secret(path: Path, what: str) -> str:
     try:
         return path.read_text().strip()

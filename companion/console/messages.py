@@ -18,7 +18,7 @@ from typing import Any
 MAX_TEXT_CHARS = 8192  # an input or a command is a few hundred characters
 MAX_AXES, MAX_BUTTONS = 16, 32
 STICK_TOLERANCE = 1e-6  # a pad reporting 1.0000001 is full deflection, not a fault
-COMMANDS = ("start", "go", "auto", "pause", "resume", "next", "stop", "hand_back", "discard_last")
+COMMANDS = ("start", "go", "auto", "pause", "resume", "next", "stop", "hand_back", "discard_last", "questionnaire")
 ROLES = ("pilot", "watch")
 
 

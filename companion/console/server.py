@@ -306,6 +306,8 @@ class ConsoleServer:
             s.hand_back()
         elif name == "discard_last":
             s.discard_last(str(message.get("reason") or "discarded by the pilot")[:200])
+        elif name == "questionnaire":  # col study: {"answers": {...}} or {"skip": true}
+            s.answer_questionnaire(None if message.get("skip") is True else message.get("answers"))
 
 
 async def _serve(server: ConsoleServer, host: str, port: int, on_ready: Any,

@@ -28,9 +28,11 @@ from typing import Any
 from companion.app import CONDITIONS, RunOptions, RunResult, Vehicle, run_episodes, write_pictures
 from companion.config import CompanionConfig
 from companion.console.frames import FramePump
+from companion.console.study import ConsoleStudy
 from companion.control.arbiter import Phase
 from companion.control.session import EpisodeRecord, StepView
 from companion.errors import ColError, ConfigError
+from companion.experiment.study import Block
 from companion.inputs.browser import BrowserInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
@@ -141,8 +143,11 @@ class ConsoleSession:
     """Start, pause, next, stop; and the run's eyes and hands for the page."""
 
     def __init__(self, cfg: CompanionConfig, opts: ConsoleOptions, publish: Publish,
-                 publish_frame: PublishFrame) -> None:
+                 publish_frame: PublishFrame, study: ConsoleStudy | None = None) -> None:
+        """``study``: ``col study``'s protocol decides what Start flies, where, and what follows."""
         self.cfg, self.opts = cfg, opts
+        self.study = study
+        self._run_dir = opts.run_dir  # the folder the current (or last) run writes to
         self.publish, self.publish_frame = publish, publish_frame
         self.human = BrowserInput(cfg.pilot)
         self.hud = Hud(cfg.session.pad_ned_m[2], cfg.session.max_steps, cfg.session.control_rate_hz)
@@ -171,11 +176,14 @@ class ConsoleSession:
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 raise ConfigError("a run is already going; stop it first")
+            block = self.study.check_start(condition, episodes) if self.study is not None else None
+            self._run_dir = self.study.run_dir(block) if self.study is not None and block is not None else self.opts.run_dir
+            seed = self.study.seed(block) if self.study is not None and block is not None else self.opts.seed
             self._run = _RunState("starting", condition, episodes, auto=auto, started_wall_s=time.time(),
                                   stage="starting the simulator and connecting (a few seconds)")
             self._paused = self._stop = self._next = False
             self._go = True  # Start is the first episode's "go"
-            self._thread = threading.Thread(target=self._run_thread, args=(condition, episodes),
+            self._thread = threading.Thread(target=self._run_thread, args=(condition, episodes, seed, block),
                                             name="console-run", daemon=True)
             self._thread.start()
         self._announce(f"starting {condition} with {episodes} episodes")
@@ -332,16 +340,19 @@ class ConsoleSession:
         return None
 
     # ----- run thread -------------------------------------------------------------------------
-    def _run_thread(self, condition: str, episodes: int) -> None:
+    def _run_thread(self, condition: str, episodes: int, seed: int | None, block: Block | None) -> None:
         opts = RunOptions(connection=self.opts.connection, simulator=self.opts.simulator, pilot="browser",
-                          condition=condition, episodes=episodes, run_dir=self.opts.run_dir,
-                          config_path=self.opts.config_path, seed=self.opts.seed, lockstep=False,
+                          condition=condition, episodes=episodes, run_dir=self._run_dir,
+                          config_path=self.opts.config_path, seed=seed, lockstep=False,
                           learn=self.opts.learn, camera_rate_hz=self.opts.camera_rate_hz)
         state, error = "finished", None
         self._recorder = FlightRecorder() if self.opts.pictures else None
         try:
-            result = run_episodes(self.cfg, opts, self._on_episode, human=self.human, control=self)
+            cfg = self.study.config(block) if self.study is not None and block is not None else self.cfg
+            result = run_episodes(cfg, opts, self._on_episode, human=self.human, control=self)
             self._write_pictures(result, condition)
+            if self.study is not None and block is not None:
+                self._finish_block(block)
         except ColError as exc:
             state, error = "failed", str(exc)
             log.error("the console's run failed: %s", exc)
@@ -362,6 +373,30 @@ class ConsoleSession:
                 self._vehicle = None
                 self._publish_status_locked()
         self._announce(self._run.summary or f"run {state}")
+
+    def _finish_block(self, block: Block) -> None:
+        """col study: a complete condition block's policy flies the held-out starts (a trial line)."""
+        assert self.study is not None
+        if block.trial is not None and self.study.folder.flown(block) >= block.episodes:
+            with self._lock:
+                self._run.stage = (f"evaluating the final policy alone on {self.study.setup.exp.eval_runs} "
+                                   "held-out starts")
+                self._publish_status_locked()
+        line = self.study.after_run(block)
+        if line is not None:
+            self._announce(f"block {block.name}: the final policy landed {line['eval_successes']} of "
+                           f"{line['eval_runs']} held-out starts alone; now the questionnaire (or skip it)")
+
+    def answer_questionnaire(self, answers: Any) -> None:
+        """col study: the participant's NASA-TLX after a block (None: skipped)."""
+        if self.study is None:
+            raise ConfigError("no study: the questionnaire belongs to `col study`")
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                raise ConfigError("the questionnaire comes after the block's run")
+            line = self.study.answer(answers)
+            self._publish_status_locked()
+        self._announce(f"questionnaire after {line['block']} " + ("skipped" if line["skipped"] else "saved"))
 
     def _summary_locked(self, state: str, error: str | None) -> str:
         """The message at the end of a run: what was flown and what landed."""
@@ -413,7 +448,7 @@ class ConsoleSession:
 
     def _write_notes(self, notes: dict[str, Any]) -> None:
         try:
-            with (self.opts.run_dir / NOTES_FILE).open("a") as f:
+            with (self._run_dir / NOTES_FILE).open("a") as f:
                 f.write(json.dumps(notes) + "\n")
         except OSError as exc:  # the dataset and episodes.jsonl are safe; the notes are a courtesy
             log.warning("could not write the console's notes: %s", exc)
@@ -443,7 +478,8 @@ class ConsoleSession:
                         "samples": len(dataset) if dataset is not None else None},
             "simulator": getattr(simulator, "address", None),
             "frames": self._pump.frames if self._pump is not None else 0,
-            "run_dir": str(self.opts.run_dir),
+            "run_dir": str(self._run_dir),
+            "study": self.study.status() if self.study is not None else None,
         }
 
     def status(self) -> dict[str, Any]:

@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -81,6 +82,10 @@ class ExperimentConfig(Section):
         return value
 
 
+STUDY_PARTICIPANT = re.compile(r"S\d{2,3}")
+"""A real person of ``col study`` (companion/experiment/study.py): S01, S02, ..."""
+
+
 @dataclass(frozen=True)
 class Trial:
     """One cell of the grid: who trains, how, for how many episodes, which replicate."""
@@ -91,9 +96,11 @@ class Trial:
     seed: int
 
     def __post_init__(self) -> None:
-        if self.participant not in PROFILES and operator_named(self.participant) is None:
-            raise ConfigError(f"unknown participant {self.participant!r}; use one of {list(PROFILES)} "
-                              "or the human operator model's H01, H02, ...")
+        known = (self.participant in PROFILES or operator_named(self.participant) is not None
+                 or STUDY_PARTICIPANT.fullmatch(self.participant) is not None)
+        if not known:
+            raise ConfigError(f"unknown participant {self.participant!r}; use one of {list(PROFILES)}, "
+                              "the human operator model's H01, H02, ... or a study's S01, S02, ...")
         if self.condition not in TRAIN_CONDITIONS:
             raise ConfigError(f"unknown condition {self.condition!r}; use one of {list(TRAIN_CONDITIONS)}")
         if self.interactions < 1 or self.seed < 0:

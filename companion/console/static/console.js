@@ -106,10 +106,40 @@ function onStatus(s) {
     document.getElementById("condition").value = r.condition;
     document.getElementById("episodes").value = r.episodes;
   }
+  showStudy(s.study);
   if (s.input.hold_reason) {
     showBanner(`HOLDING POSITION: ${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
   } else if (C.connected && isPilot()) { hideBanner(); }
   updateControls(); drawMap(); drawVideo();  // a run's end shows at once, not at the next frame
+}
+
+// ----- col study: the protocol sets the condition and episodes; a questionnaire after each block
+function showStudy(st) {
+  C.study = st || null;
+  document.getElementById("study-panel").classList.toggle("study-hidden", !st);
+  if (!st) return;
+  const next = st.next;
+  setText("study-info", `participant ${st.participant}; conditions in the order ${st.order.join(", ")}; ` +
+    (next ? `next: ${next.name} (${next.condition}, ${next.episodes} episodes)` : "the study is complete, thank you"));
+  const list = document.getElementById("study-blocks");
+  list.replaceChildren(...st.blocks.map((b) => {
+    const li = document.createElement("li");
+    li.textContent = `${b.name}: ${b.condition}, ${b.flown} of ${b.episodes} episodes - ${b.state}`;
+    return li;
+  }));
+  if (next && !ACTIVE.includes(C.status.run.state)) {
+    document.getElementById("condition").value = next.condition;
+    document.getElementById("episodes").value = next.episodes;
+  }
+  document.getElementById("condition").disabled = true;
+  document.getElementById("episodes").disabled = true;
+  document.getElementById("tlx").classList.toggle("study-hidden", !st.questionnaire_for);
+}
+
+function tlxAnswers() {
+  const answers = {};
+  for (const el of document.querySelectorAll("#tlx input[data-scale]")) answers[el.dataset.scale] = Number(el.value);
+  return answers;
 }
 
 function updateControls() {
@@ -431,6 +461,8 @@ document.getElementById("discard").onclick = () => {
     command("discard_last", { reason: last.no_stick_input ? "demonstration with no stick input" : "discarded by the pilot" });
   }
 };
+document.getElementById("tlx-submit").onclick = () => command("questionnaire", { answers: tlxAnswers() });
+document.getElementById("tlx-skip").onclick = () => command("questionnaire", { skip: true });
 document.getElementById("take-role").onclick = () => send({ type: "role", want: isPilot() ? "watch" : "pilot" });
 
 connect();
