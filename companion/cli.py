@@ -389,6 +389,32 @@ def study(
         raise _fail(ColError(f"cannot serve the study's console on 127.0.0.1:{port}: {exc}; choose another --port")) from None
 
 
+@app.command("study-report")
+def study_report(
+    folders: Annotated[list[Path], typer.Argument(help="participants' study folders (col study --out)")],
+    out: Annotated[Path, typer.Option("--out", help="folder for report.md and the plots")],
+) -> None:
+    """The grid's report (tables, paired statistics, plots) over participants' study folders,
+    to set beside a synthetic grid's report."""
+    from companion.experiment.report import write_report
+    from companion.experiment.results import ResultsFile
+
+    try:
+        results = []
+        for folder in folders:
+            path = folder / "results.jsonl"
+            if not path.is_file():
+                raise ConfigError(f"{folder} has no results.jsonl: give the folders `col study --out` wrote")
+            results += ResultsFile(path).load()
+        if not results:
+            raise ConfigError("no finished trial in these folders yet")
+        report = write_report(results, out)
+    except ColError as exc:
+        raise _fail(exc) from None
+    typer.echo(report.read_text())
+    typer.echo(json.dumps({"trials": len(results), "report": str(report)}))
+
+
 def _read_secret(path: Path, what: str) -> str:
     try:
         return path.read_text().strip()

@@ -13,6 +13,7 @@ const ACTIVE = ["starting", "running", "ready", "paused", "stopping"];
 const COLOURS = { person: "#ff9800", policy: "#29b6f6", hold: "#e53935" };
 
 const C = window.colConsole = {
+  study: null,
   framesDrawn: 0, frameLatenciesMs: [], drawTimesMs: [], frameStamps: [], steps: [], records: [], status: null,
   hello: null, lastStep: null, track: [], inputsSent: 0, connected: false, notices: [], errors: [],
   role: null, videoState: "waiting", hudState: "waiting", clockOffsetMs: 0,  // a test may move the clock
@@ -146,7 +147,8 @@ function updateControls() {
   const st = runState(), pilot = isPilot(), active = ACTIVE.includes(st);
   const last = C.records.length ? C.records[C.records.length - 1] : null;
   const hold = C.status && C.status.input.holding && C.status.input.hold_reason;
-  const enable = { start: pilot && !active, go: pilot && st === "ready", pause: pilot && active && st !== "stopping",
+  const studyWaits = C.study && (!C.study.next || C.study.questionnaire_for);  // col study: finished, or the questionnaire first
+  const enable = { start: pilot && !active && !studyWaits, go: pilot && st === "ready", pause: pilot && active && st !== "stopping",
     next: pilot && st === "running", stop: pilot && active && st !== "stopping", handback: pilot && !!hold,
     discard: pilot && !!last && !last.discarded && !["starting", "running", "stopping"].includes(st), auto: pilot };
   for (const [id, on] of Object.entries(enable)) document.getElementById(id).disabled = !on;
