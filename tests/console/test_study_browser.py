@@ -16,7 +16,15 @@ import pytest
 from companion.experiment.report import write_report
 from companion.experiment.results import ResultsFile
 from tests.console import stop
-from tests.console.test_console_browser import CHROMIUM, CHROMIUM_ARGS, FAKE_PAD, REPO, _browser_or_skip, _wait, shot
+from tests.console.test_console_browser import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    FAKE_PAD,
+    REPO,
+    _browser_or_skip,
+    _wait,
+    shot,
+)
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(1500)]
 
