@@ -8,6 +8,7 @@ written before these runs. Steps, each resumable on its own (a step whose output
     python results/precland/compare/run.py policies [--grid-run runs/paper-grid-pinned]
                                                                 # CoL@20 / Demo@20 of P1-P4 replicate 0, then level 0
     python results/precland/compare/run.py real precland        # real PX4 SIH, rendered camera (also: real expert)
+    python results/precland/compare/run.py records              # environment.jsonl from the runs' records
     python results/precland/compare/run.py summarise            # summary.json and table.md from the episodes
 
 Run folders go to runs/precland-compare/; what is committed is each arm's episodes.jsonl (in
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -53,7 +55,13 @@ vehicle_height_m = 0.0
 
 
 def col() -> str:
-    return str(Path(sys.executable).with_name("col"))
+    return _rel(Path(sys.executable).with_name("col"))
+
+
+def _rel(path: Path) -> str:
+    """A path as the commands (run from the repository's root) name it: relative, so the
+    records say nothing of the machine's folders."""
+    return os.path.relpath(path, ROOT)
 
 
 def config_name(arm: str, level: str) -> Path:
@@ -87,6 +95,21 @@ def _keep(run_dir: Path, name: str) -> None:
     shutil.copy(run_dir / "episodes.jsonl", EPISODES / f"{name}.jsonl")
 
 
+def environment_records() -> None:
+    """``environment.jsonl`` here: every kept arm's run records (tagged with the arm), its
+    folders named relative to the repository."""
+    lines = []
+    for kept in sorted(EPISODES.glob("*.jsonl")):
+        records = RUNS / kept.stem / "environment.jsonl"
+        if not records.exists():  # the level-0.2 policies: their grid's own records
+            continue
+        for line in records.read_text().splitlines():
+            if line.strip():
+                text = json.dumps({"arm": kept.stem, **json.loads(line)}, sort_keys=True)
+                lines.append(text.replace(str(ROOT) + os.sep, ""))
+    (HERE / "environment.jsonl").write_text("\n".join(lines) + "\n")
+
+
 def fly(arm: str, level: str) -> None:
     name = f"{arm}-level-{level}"
     if (EPISODES / f"{name}.jsonl").exists():
@@ -94,8 +117,8 @@ def fly(arm: str, level: str) -> None:
     run_dir = RUNS / name
     shutil.rmtree(run_dir, ignore_errors=True)
     pilot = ["--pilot", "expert", "--condition", "demo", "--no-learn"] if arm == "expert" else ["--pilot", "precland"]
-    _run([col(), "fly", *pilot, "--config", str(config_name(arm, level)), "--episodes", str(STARTS),
-          "--seed", str(FIRST_START), "--run-dir", str(run_dir), "--no-pictures"], RUNS / f"{name}.log")
+    _run([col(), "fly", *pilot, "--config", _rel(config_name(arm, level)), "--episodes", str(STARTS),
+          "--seed", str(FIRST_START), "--run-dir", _rel(run_dir), "--no-pictures"], RUNS / f"{name}.log")
     _keep(run_dir, name)
 
 
@@ -113,7 +136,7 @@ def policies(grid_run: Path | None) -> None:
     rerun = [key for key in POLICIES if key not in folders and key in committed]
     if rerun:
         work = RUNS / f"policies-verify-{len(list(RUNS.glob('policies-verify-*.log')))}"
-        cmd = [col(), "experiment", "--verify", str(GRID), "--keep", str(work)]
+        cmd = [col(), "experiment", "--verify", _rel(GRID), "--keep", _rel(work)]
         for key in rerun:
             cmd += ["--trial", key]
         log = work.with_suffix(".log")
@@ -144,8 +167,8 @@ def policies(grid_run: Path | None) -> None:
         checkpoint = trial / "train" / "checkpoints" / "episode_019.npz"  # the run's key is the trial's at 20
         run_dir = RUNS / name
         shutil.rmtree(run_dir, ignore_errors=True)
-        _run([col(), "eval", str(checkpoint), "--config", str(config_name("expert", "0")), "--episodes", str(STARTS),
-              "--seed", str(FIRST_START), "--run-dir", str(run_dir), "--no-pictures"], RUNS / f"{name}.log")
+        _run([col(), "eval", _rel(checkpoint), "--config", _rel(config_name("expert", "0")), "--episodes", str(STARTS),
+              "--seed", str(FIRST_START), "--run-dir", _rel(run_dir), "--no-pictures"], RUNS / f"{name}.log")
         _keep(run_dir, name)
 
 
@@ -164,8 +187,8 @@ def real(arm: str) -> None:
     shutil.rmtree(run_dir, ignore_errors=True)
     pilot = ["--pilot", "expert", "--condition", "demo", "--no-learn"] if arm == "expert" else ["--pilot", "precland"]
     try:
-        _run([col(), "fly", *pilot, "--connect", ap.connection, "--config", str(CONFIGS / "real-px4.toml"),
-              "--episodes", str(REAL_STARTS), "--seed", str(FIRST_START), "--run-dir", str(run_dir), "--no-pictures"],
+        _run([col(), "fly", *pilot, "--connect", ap.connection, "--config", _rel(CONFIGS / "real-px4.toml"),
+              "--episodes", str(REAL_STARTS), "--seed", str(FIRST_START), "--run-dir", _rel(run_dir), "--no-pictures"],
              RUNS / f"{name}.log")
     finally:
         ap.stop()
@@ -184,6 +207,7 @@ def main() -> None:
     r = sub.add_parser("real")
     r.add_argument("arm", choices=("precland", "expert"))
     sub.add_parser("summarise")
+    sub.add_parser("records")
     args = parser.parse_args()
     if args.step == "configs":
         write_configs()
@@ -193,6 +217,8 @@ def main() -> None:
         policies(args.grid_run)
     elif args.step == "real":
         real(args.arm)
+    elif args.step == "records":
+        environment_records()
     else:
         from summarise import main as summarise  # type: ignore[import-not-found]
 
