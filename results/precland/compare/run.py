@@ -79,7 +79,8 @@ def write_configs() -> None:
         config_name("expert", level).write_text(base)
         config_name("precland-px4", level).write_text(base + ARUCO)
         config_name("precland-ardupilot", level).write_text(base + ARUCO + ARDUPILOT)
-    (CONFIGS / "real-px4.toml").write_text(REAL + ARUCO)
+    (CONFIGS / "real-px4.toml").write_text(REAL + ARUCO)  # precision landing: the board on the pad
+    (CONFIGS / "real-px4-colour-pad.toml").write_text(REAL)  # the expert: the colour pad its detector knows
 
 
 def _run(cmd: list[str], log: Path) -> None:
@@ -187,7 +188,8 @@ def real(arm: str) -> None:
     shutil.rmtree(run_dir, ignore_errors=True)
     pilot = ["--pilot", "expert", "--condition", "demo", "--no-learn"] if arm == "expert" else ["--pilot", "precland"]
     try:
-        _run([col(), "fly", *pilot, "--connect", ap.connection, "--config", _rel(CONFIGS / "real-px4.toml"),
+        config = CONFIGS / ("real-px4-colour-pad.toml" if arm == "expert" else "real-px4.toml")
+        _run([col(), "fly", *pilot, "--connect", ap.connection, "--config", _rel(config),
               "--episodes", str(REAL_STARTS), "--seed", str(FIRST_START), "--run-dir", _rel(run_dir), "--no-pictures"],
              RUNS / f"{name}.log")
     finally:
