@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -107,7 +108,8 @@ def environment_records() -> None:
         for line in records.read_text().splitlines():
             if line.strip():
                 text = json.dumps({"arm": kept.stem, **json.loads(line)}, sort_keys=True)
-                lines.append(text.replace(str(ROOT) + os.sep, ""))
+                text = text.replace(str(ROOT) + os.sep, "")
+                lines.append(re.sub(r'"[^"]*?(runs/paper-grid-pinned/)', r'"\1', text))  # the grid's run folder, wherever it ran
     (HERE / "environment.jsonl").write_text("\n".join(lines) + "\n")
 
 
