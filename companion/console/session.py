@@ -213,6 +213,9 @@ class ConsoleSession:
             dataset = self._dataset
         if last is None:
             raise ConfigError("no finished episode to discard")
+        if self.study is not None and self.study.trial_written():
+            raise ConfigError("the block is finished and its trial written (its policy was evaluated on what it "
+                              "learned): discard between a block's episodes")
         if last.get("discarded"):
             raise ConfigError(f"episode {last['episode']} was discarded already")
         rows = self._discard(int(last["episode"]), reason, dataset)
@@ -226,7 +229,7 @@ class ConsoleSession:
         try:
             if dataset is not None:
                 return dataset.discard_episode(episode, reason)
-            with HumanDataset(self.opts.run_dir / "human.csv") as stored:  # after a restart, between runs
+            with HumanDataset(self._run_dir / "human.csv") as stored:  # after a restart, between runs
                 return stored.discard_episode(episode, reason)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None

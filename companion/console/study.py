@@ -90,6 +90,11 @@ class ConsoleStudy:
         log.info("study: %s flew %d of %d held-out starts alone", trial.key, result.eval_successes, result.eval_runs)
         return result.to_json_dict()
 
+    def trial_written(self) -> bool:
+        """Whether the block flown last is a finished trial (its line written)."""
+        block = self.block
+        return block is not None and block.trial is not None and block.trial.key in self.folder.finished_trials()
+
     def answer(self, answers: Any) -> dict[str, Any]:
         """The questionnaire after the last finished block (None or ``{"skip": true}``: skipped)."""
         due = self.folder.questionnaire_due()

@@ -117,3 +117,23 @@ def test_the_folder_knows_what_is_done_from_its_files_and_asks_for_each_question
         StudyFolder(tmp_path / "s01", StudyPlan("S01", 4, 1)).open()
     lines = [json.loads(x) for x in (tmp_path / "s01" / "results.jsonl").read_text().splitlines()]
     assert [x["trial"]["key"] for x in lines] == ["S01-demo-02-s0", "S01-int-02-s0"]
+
+
+def test_a_finished_blocks_episodes_cannot_be_discarded(tmp_path: Path) -> None:
+    """Its policy was evaluated on what it learned: the trial line stands as written."""
+    from companion.config import CompanionConfig
+    from companion.console.session import ConsoleOptions, ConsoleSession
+
+    setup = load_experiment(PAPER)
+    folder = StudyFolder(tmp_path / "s01", StudyPlan("S01", 2, 0)).open()
+    study = ConsoleStudy(folder, setup)
+    session = ConsoleSession(CompanionConfig(), ConsoleOptions(run_dir=tmp_path / "s01" / "practice"),
+                             lambda m: None, lambda f: None, study)
+    block = study.check_start("demo", 2)
+    _flown(folder, 0, 2)
+    session.records.append({"episode": 1, "discarded": None})
+    assert not study.trial_written()
+    _finished(folder, 0, setup)
+    assert study.trial_written() and block.trial is not None
+    with pytest.raises(ConfigError, match="trial written"):
+        session.discard_last("oops")
