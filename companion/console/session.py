@@ -176,9 +176,11 @@ class ConsoleSession:
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 raise ConfigError("a run is already going; stop it first")
-            block = self.study.check_start(condition, episodes) if self.study is not None else None
-            self._run_dir = self.study.run_dir(block) if self.study is not None and block is not None else self.opts.run_dir
-            seed = self.study.seed(block) if self.study is not None and block is not None else self.opts.seed
+            block, seed = None, self.opts.seed
+            self._run_dir = self.opts.run_dir
+            if self.study is not None:
+                block = self.study.check_start(condition, episodes)
+                self._run_dir, seed = self.study.run_dir(block), self.study.seed(block)
             self._run = _RunState("starting", condition, episodes, auto=auto, started_wall_s=time.time(),
                                   stage="starting the simulator and connecting (a few seconds)")
             self._paused = self._stop = self._next = False
@@ -444,6 +446,8 @@ class ConsoleSession:
                      "console_run_s": self._run.started_wall_s}
             self.records.append(entry)
         self._write_notes(notes)
+        if self.study is not None:
+            self.study.refresh()  # the block's episode count moved
         self.publish({"type": "episode", **entry})
         if notes["no_stick_input"]:
             self._announce(f"episode {record.episode} was a demonstration with no stick input "

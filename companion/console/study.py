@@ -18,7 +18,7 @@ from companion.config import CompanionConfig
 from companion.control.session import EpisodeRecord
 from companion.errors import ConfigError
 from companion.experiment.grid import ExperimentSetup
-from companion.experiment.runner import _result, evaluate_checkpoint, trial_config
+from companion.experiment.runner import evaluate_checkpoint, trial_config, trial_result
 from companion.experiment.study import Block, StudyFolder, check_answers
 
 log = logging.getLogger(__name__)
@@ -39,6 +39,14 @@ class ConsoleStudy:
     def __init__(self, folder: StudyFolder, setup: ExperimentSetup) -> None:
         self.folder, self.setup = folder, setup
         self.block: Block | None = None  # the block flying now
+        self._status: dict[str, Any] = {}
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Read the folder's state again (after an episode, a block, a questionnaire): the page's
+        status, sent four times a second under the session's lock, never reads files itself."""
+        self._status = {**self.folder.status(), "eval_runs": self.setup.exp.eval_runs,
+                        "eval_seed": self.setup.exp.eval_seed}
 
     def check_start(self, condition: str, episodes: int) -> Block:
         """The block Start flies, if the page asked for exactly it (ConfigError otherwise)."""
@@ -84,9 +92,10 @@ class ConsoleStudy:
         trial_dir = self.folder.trial_dir(block)
         t0 = time.monotonic()
         evaluation = evaluate_checkpoint(self.setup, cfg, checkpoint, trial_dir)
-        result = _result(self.setup, trial, train, evaluation, eval_wall_s=time.monotonic() - t0,
+        result = trial_result(self.setup, trial, train, evaluation, eval_wall_s=time.monotonic() - t0,
                          checkpoint=str(checkpoint.relative_to(self.folder.root)))
         self.folder.add_result(result)
+        self.refresh()
         log.info("study: %s flew %d of %d held-out starts alone", trial.key, result.eval_successes, result.eval_runs)
         return result.to_json_dict()
 
@@ -101,7 +110,9 @@ class ConsoleStudy:
         if due is None:
             raise ConfigError("no questionnaire is due (one follows each finished condition block)")
         checked = None if answers is None else check_answers(answers)
-        return self.folder.record_questionnaire(due, checked)
+        line = self.folder.record_questionnaire(due, checked)
+        self.refresh()
+        return line
 
     def status(self) -> dict[str, Any]:
-        return {**self.folder.status(), "eval_runs": self.setup.exp.eval_runs, "eval_seed": self.setup.exp.eval_seed}
+        return self._status

@@ -82,13 +82,13 @@ def run_training(setup: ExperimentSetup, run: TrainingRun, out_dir: Path) -> lis
         trial_dir.mkdir(parents=True, exist_ok=True)
         t0 = time.monotonic()
         evaluation = evaluate_checkpoint(setup, cfg, checkpoint, trial_dir)
-        results.append(_result(setup, trial, train.records[:trial.interactions], evaluation,
+        results.append(trial_result(setup, trial, train.records[:trial.interactions], evaluation,
                                eval_wall_s=time.monotonic() - t0,
                                checkpoint=str(checkpoint.relative_to(out_dir))))
     return results
 
 
-def _result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord], evaluation: RunResult,
+def trial_result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord], evaluation: RunResult,
             eval_wall_s: float, checkpoint: str) -> TrialResult:
     """A trial's result from its training episodes (a prefix of the run) and its evaluation."""
     intervening = [r for r in train if r.phase == Phase.INTERVENTION.value]

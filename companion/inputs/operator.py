@@ -176,7 +176,8 @@ class TakeOver:
     def __init__(self, traits: OperatorTraits, period_s: float, rng: np.random.Generator) -> None:
         self.t, self.period_s, self.rng = traits, period_s, rng
         self.holding = False
-        self._due: int | None = None  # step at which the pending change happens
+        self._due: int | None = None  # step at which the pending take-over or let-go happens
+        self._look_again: int | None = None  # after a miss: the step the person looks again
         self._step = 0
         self.missed = 0
         self.events = 0
@@ -188,26 +189,32 @@ class TakeOver:
 
     def update(self, flagged: bool) -> bool:
         step, self._step = self._step, self._step + 1
-        if not self.holding:
-            if not flagged:
-                self._due, self._flag_step = None, None
+        if self.holding:
+            return self._letting_go(flagged, step)
+        if not flagged:
+            self._due = self._look_again = self._flag_step = None
+            return False
+        if self._flag_step is None:
+            self._flag_step = step
+        if self._look_again is not None:
+            if step < self._look_again:
                 return False
-            if self._flag_step is None:
-                self._flag_step = step
-            if self._due is None:
-                self.events += 1
-                if self.rng.random() < self.t.detection_prob:
-                    self._due = step + self._steps(self.t.detection_delay_s + self.t.draw_reaction_s(self.rng))
-                else:
-                    self.missed += 1
-                    self._due = -(step + self._steps(self.t.recheck_s))  # negative: a re-look, not a take-over
-            if self._due >= 0 and step >= self._due:
-                self.holding, self._due = True, None
-                self.latencies_s.append((step - self._flag_step) * self.period_s)
-                self._flag_step = None
-            elif self._due < 0 and step >= -self._due:
-                self._due = None  # look again at the next flagged step
-            return self.holding
+            self._look_again = None
+        if self._due is None:
+            self.events += 1
+            if self.rng.random() < self.t.detection_prob:
+                self._due = step + self._steps(self.t.detection_delay_s + self.t.draw_reaction_s(self.rng))
+            else:
+                self.missed += 1
+                self._look_again = step + self._steps(self.t.recheck_s) + 1  # the flagged step after recheck_s
+                return False
+        if step >= self._due:
+            self.holding, self._due = True, None
+            self.latencies_s.append((step - self._flag_step) * self.period_s)
+            self._flag_step = None
+        return self.holding
+
+    def _letting_go(self, flagged: bool, step: int) -> bool:
         if flagged:
             self._due = None
             return True
