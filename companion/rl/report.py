@@ -5,7 +5,7 @@ Reads run folders named ``a<actions>-s<seed>`` (``col ppo --out``; finished or s
 file of ``col experiment``, and writes ``summary.json`` and ``learning_curves.png``:
 
     python -m companion.rl.report results/ppo/grid --random results/ppo/random \\
-        --col results/paper-grid/results.jsonl --out results/ppo
+        --col results/paper-grid/variants/native-skylakex/results.jsonl --out results/ppo
 """
 
 from __future__ import annotations
