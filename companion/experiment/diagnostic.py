@@ -10,7 +10,7 @@ interventions and intervened steps per episode, and the policy's loss on the int
 samples after each episode. Reads the runs' ``episodes.jsonl`` (a grid's run folder keeps
 them under ``trials/<run>/train/``); the committed results hold only the summary.
 
-    python -m companion.experiment.diagnostic runs/paper-grid-pinned > diagnostic.json
+    python -m companion.experiment.diagnostic runs/human-like > diagnostic.json
 """
 
 from __future__ import annotations
