@@ -551,6 +551,7 @@ def ppo(
     envs: Annotated[int, typer.Option("--envs", min=1, help="envs stepped at once (more than 1: worker processes)")] = 1,
     workers: Annotated[int | None, typer.Option("--workers", min=1, help="worker processes for the --envs envs, each stepping a group of them (default: one per env; the same episodes either way, fewer hand-overs with fewer workers)")] = None,
     mavlink: Annotated[bool, typer.Option("--mavlink", help="fly the SITL over MAVLink sockets instead of in-process (the same episodes, slower)")] = False,
+    batched: Annotated[bool, typer.Option("--batched", help="train in the batched, session-free env: the same episodes, faster (--workers: processes, default 1)")] = False,
     random: Annotated[bool, typer.Option("--random", help="no training: uniformly random actions on the training starts; writes random.json")] = False,
     eval_checkpoint: Annotated[bool, typer.Option("--eval-checkpoint", help="no training: fly the latest checkpoint of the unfinished run in --out on the held-out starts; writes checkpoint_eval.json")] = False,
     config: ConfigOpt = None,
@@ -586,7 +587,7 @@ def ppo(
         done = _episodes_logged(folder)
         bar = tqdm(total=episodes, initial=min(done, episodes), desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
         try:
-            results = run_ppo(settings, folder, cfg, config, lambda r: bar.update(1), workers=workers)
+            results = run_ppo(settings, folder, cfg, config, lambda r: bar.update(1), workers=workers, batched=batched)
         finally:
             bar.close()
     except ColError as exc:

@@ -148,6 +148,14 @@ def clip(x: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, int]:
     return out, int(np.count_nonzero(~finite) + np.count_nonzero(out != safe))
 
 
+def body_velocity(physical: np.ndarray) -> np.ndarray:
+    """Physical values ``(..., 4)`` (right, forward, yaw rate, up) -> a setpoint's (forward,
+    right, down, yaw rate). ``down = 0.0 - up``, not ``-up``: a centred stick gives +0.0, not -0.0."""
+    out = np.asarray(physical, dtype=np.float64)[..., [1, 0, 3, 2]]
+    out[..., 2] = 0.0 - out[..., 2]
+    return out
+
+
 # --- the mapper ----------------------------------------------------------------------------
 
 
@@ -185,14 +193,20 @@ class CommandMapper:
 
     def to_setpoint(self, cmd: JoystickCommand) -> VelocitySetpoint:
         """Map a valid command; the final clip guarantees the limits whatever the shaping."""
-        shaped = expo(deadband(cmd.to_array(), self.cfg.deadband), self.cfg.expo)
-        physical, clipped = clip(scale(shaped, self._limits), self._limits)
+        physical, clipped = self.physical(cmd.to_array())
         self._count(MapperCounts(commands=1, clipped_axes=clipped))
-        right, forward, yaw_rate, up = (float(v) for v in physical)
-        down = 0.0 - up  # not -up: a centred stick gives +0.0, not -0.0
+        forward, right, down, yaw_rate = (float(v) for v in body_velocity(physical))
         return VelocitySetpoint(
             forward_m_s=forward, right_m_s=right, down_m_s=down, yaw_rate_rad_s=yaw_rate
         )
+
+    def physical(self, sticks: np.ndarray) -> tuple[np.ndarray, int]:
+        """Valid stick values ``(..., 4)`` in :data:`AXES` order -> physical values (right,
+        forward, yaw rate, up): deadband -> expo -> scale -> clip, element by element, so a stack
+        of commands (companion/rl/batched_env.py) maps exactly as each alone; with the number of
+        values the final clip changed. Not counted: :meth:`to_setpoint` counts."""
+        shaped = expo(deadband(sticks, self.cfg.deadband), self.cfg.expo)
+        return clip(scale(shaped, self._limits), self._limits)
 
     def command_from_values(self, values: Sequence[float] | np.ndarray) -> JoystickCommand:
         """Untrusted values (a policy's raw output) as a valid command; repairs counted, logged.

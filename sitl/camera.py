@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import NamedTuple
 
 import cv2
@@ -87,7 +88,8 @@ def _periodic_noise(rng: np.random.Generator, n: int, cycles: float) -> np.ndarr
 
 
 def _pyramid(base: np.ndarray, count: int, wrap: bool) -> tuple[np.ndarray, ...]:
-    """``count`` BGRA levels of a BGR image, each half the size of the one before."""
+    """``count`` BGRA levels of a BGR image, each half the size of the one before; read-only,
+    since renderers of one process share them (below)."""
     levels = [base]
     for _ in range(count - 1):
         src = levels[-1]
@@ -96,9 +98,16 @@ def _pyramid(base: np.ndarray, count: int, wrap: bool) -> tuple[np.ndarray, ...]
             levels.append(np.ascontiguousarray(cv2.pyrDown(padded)[2:-2, 2:-2]))
         else:
             levels.append(cv2.pyrDown(src))
-    return tuple(cv2.cvtColor(level, cv2.COLOR_BGR2BGRA) for level in levels)
+    bgra = tuple(cv2.cvtColor(level, cv2.COLOR_BGR2BGRA) for level in levels)
+    for level in bgra:
+        level.flags.writeable = False
+    return bgra
 
 
+# Made once per process for each set of arguments: a pure function of them, 10 MB and 0.4 s of
+# CPU per renderer otherwise (several envs in one process each have a renderer), and every frame
+# of every renderer then reads the same textures from the caches.
+@lru_cache(maxsize=4)
 def ground_pyramid(seed: int) -> TexturePyramid:
     """Grass and dirt patches with fine grain: seeded, procedural, repeating every 16 m."""
     rng = np.random.default_rng(seed)
@@ -111,6 +120,7 @@ def ground_pyramid(seed: int) -> TexturePyramid:
     return TexturePyramid(_pyramid(base, _GROUND_LEVELS, wrap=True), _GROUND_TEXEL_M)
 
 
+@lru_cache(maxsize=4)
 def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radius_m: float,
                  marker: str = "none") -> TexturePyramid:
     """The roof (long side north-south) with the pad: a magenta disc and a white centre dot, and

@@ -13,7 +13,6 @@ from __future__ import annotations
 import ipaddress
 import json
 import logging
-import math
 import selectors
 import socket
 import threading
@@ -240,7 +239,7 @@ class SitlServer:
         self.vehicle: SimVehicle = make_vehicle(cfg)
         self.scheduler = TelemetryScheduler(self.vehicle.default_rates_hz)
         self.lockstep = cfg.clock.mode == "lockstep"
-        self.steps_per_frame = max(1, int(round(cfg.clock.fdm_rate_hz / cfg.clock.frame_rate_hz)))
+        self.steps_per_frame = frame_steps(cfg)
         self.sel = selectors.DefaultSelector()
         self.clients: list[MavClient] = []
         self.stats = ClockStats()
@@ -601,14 +600,7 @@ class SitlServer:
 
     def _fresh_scheduler(self) -> TelemetryScheduler:
         """Keep requested intervals but restart the phase, so an episode is independent of the last."""
-        fresh = TelemetryScheduler(self.vehicle.default_rates_hz)
-        for msg_id in COMPOSERS:
-            interval = self.scheduler.interval_s(msg_id)
-            if interval is None:
-                fresh.set_interval(msg_id, -1, self.vehicle.time_s)
-            elif not math.isclose(interval, fresh.interval_s(msg_id) or -1.0):
-                fresh.set_interval(msg_id, interval * 1e6, self.vehicle.time_s)
-        return fresh
+        return self.scheduler.restarted(self.vehicle.default_rates_hz, self.vehicle.time_s)
 
     # ----- teardown --------------------------------------------------------------------------
     def close(self) -> None:
@@ -623,6 +615,11 @@ class SitlServer:
         if self.camera is not None:
             self.camera.close()
         self.sel.close()
+
+
+def frame_steps(cfg: SitlConfig) -> int:
+    """FDM steps in one agent (camera) frame: 12 at 126 Hz and 10.5 Hz."""
+    return max(1, int(round(cfg.clock.fdm_rate_hz / cfg.clock.frame_rate_hz)))
 
 
 def render_frame(renderer: CameraRenderer, v: SimVehicle) -> np.ndarray:

@@ -93,9 +93,16 @@ def extended_sys_state(v: SimVehicle) -> mavlink.MAVLink_message:
     return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_MC, v.landed_state)
 
 
-def attitude(v: SimVehicle) -> mavlink.MAVLink_message:
+def attitude_fields(v: SimVehicle) -> tuple[int, float, float, float, float, float, float]:
+    """ATTITUDE's fields in message order (time_boot_ms, roll, pitch, yaw, rollspeed, pitchspeed,
+    yawspeed), before the wire rounds them to float32: also read without a message
+    (companion/rl/direct_sitl.py)."""
     (r, p, y), rates = v.reported_attitude()
-    return M.MAVLink_attitude_message(v.time_boot_ms, r, p, y, *rates)
+    return (v.time_boot_ms, r, p, y, *rates)
+
+
+def attitude(v: SimVehicle) -> mavlink.MAVLink_message:
+    return M.MAVLink_attitude_message(*attitude_fields(v))
 
 
 def attitude_quaternion(v: SimVehicle) -> mavlink.MAVLink_message:
@@ -104,11 +111,17 @@ def attitude_quaternion(v: SimVehicle) -> mavlink.MAVLink_message:
     return M.MAVLink_attitude_quaternion_message(v.time_boot_ms, *q, *rates, [0, 0, 0, 0])
 
 
-def local_position_ned(v: SimVehicle) -> mavlink.MAVLink_message:
-    """In the estimator's frame: z is ``height_offset_m`` less than the truth (x - 0.0 is exact)."""
+def local_position_fields(v: SimVehicle) -> tuple[int, float, float, float, float, float, float]:
+    """LOCAL_POSITION_NED's fields in message order (time_boot_ms, x, y, z, vx, vy, vz), before the
+    wire rounds them to float32. In the estimator's frame: z is ``height_offset_m`` less than the
+    truth (x - 0.0 is exact)."""
     s = v.state
     n, e, d = s.position_ned_m
-    return M.MAVLink_local_position_ned_message(v.time_boot_ms, n, e, d - v.height_offset_m, *s.velocity_ned_m_s)
+    return (v.time_boot_ms, n, e, d - v.height_offset_m, *s.velocity_ned_m_s)
+
+
+def local_position_ned(v: SimVehicle) -> mavlink.MAVLink_message:
+    return M.MAVLink_local_position_ned_message(*local_position_fields(v))
 
 
 def global_position_int(v: SimVehicle) -> mavlink.MAVLink_message:
@@ -130,12 +143,17 @@ def gps_raw_int(v: SimVehicle) -> mavlink.MAVLink_message:
     return M.MAVLink_gps_raw_int_message(int(v.time_s * 1e6), M.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, 80, 120, vel, cog, 14)
 
 
+def home_local(v: SimVehicle) -> tuple[float, float, float]:
+    """HOME_POSITION's x, y, z: home in the reported local frame (before the wire's float32)."""
+    n, e, d = v.home_ned_m
+    return n, e, d - v.height_offset_m
+
+
 def home_position(v: SimVehicle) -> mavlink.MAVLink_message:
     """Home's true latitude, longitude and AMSL altitude; its x, y, z in the reported local frame."""
     n, e, d = v.home_ned_m
     lat, lon, alt = ned_to_geodetic(v, n, e, d)
-    z = d - v.height_offset_m
-    return M.MAVLink_home_position_message(lat, lon, alt, n, e, z, [1, 0, 0, 0], 0, 0, 0, int(v.time_s * 1e6))
+    return M.MAVLink_home_position_message(lat, lon, alt, *home_local(v), [1, 0, 0, 0], 0, 0, 0, int(v.time_s * 1e6))
 
 
 def battery_status(v: SimVehicle) -> mavlink.MAVLink_message:
@@ -213,6 +231,18 @@ class TelemetryScheduler:
 
     def interval_s(self, msg_id: int) -> float | None:
         return self._interval_s.get(msg_id)
+
+    def restarted(self, rates_hz: dict[int, float] | None, now_s: float) -> TelemetryScheduler:
+        """A new scheduler with this one's intervals (the requested ones kept) and its phase
+        restarted at ``now_s``, so an episode is independent of the last (an episode reset)."""
+        fresh = TelemetryScheduler(rates_hz)
+        for msg_id in COMPOSERS:
+            interval = self.interval_s(msg_id)
+            if interval is None:
+                fresh.set_interval(msg_id, -1, now_s)
+            elif not math.isclose(interval, fresh.interval_s(msg_id) or -1.0):
+                fresh.set_interval(msg_id, interval * 1e6, now_s)
+        return fresh
 
     def due(self, now_s: float) -> list[int]:
         """Message ids due at ``now_s``; each is rescheduled one interval on (no bursts)."""

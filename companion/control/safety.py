@@ -115,10 +115,20 @@ class SetpointLimiter:
     def apply(self, setpoint: VelocitySetpoint, dt_s: float) -> VelocitySetpoint:
         """The setpoint to send after ``dt_s`` seconds since the previous one."""
         wanted = np.array(setpoint.as_tuple())
-        out = np.clip(wanted, -self._max, self._max)
+        out = self.clipped(wanted)
         if self._last is not None and dt_s > 0:
-            step = self._max_rate * dt_s
-            out = np.clip(out, self._last - step, self._last + step)
+            out = self.rate_limited(out, self._last, dt_s)
         self.limited_count += int(np.count_nonzero(out != wanted))
         self._last = out
         return VelocitySetpoint(*(float(v) for v in out))
+
+    def clipped(self, wanted: np.ndarray) -> np.ndarray:
+        """Setpoints ``(..., 4)`` (forward, right, down, yaw rate) clipped to the commands'
+        limits, element by element (a stack of them as each alone); no state."""
+        return np.clip(wanted, -self._max, self._max)
+
+    def rate_limited(self, out: np.ndarray, last: np.ndarray, dt_s: float) -> np.ndarray:
+        """``out`` moved at most one acceleration step of ``dt_s`` from ``last``, element by
+        element; no state."""
+        step = self._max_rate * dt_s
+        return np.clip(out, last - step, last + step)

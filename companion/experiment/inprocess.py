@@ -119,7 +119,7 @@ class InProcessSitl(SitlServer):
     """
 
     def __init__(self, cfg: SitlConfig) -> None:
-        cfg = _inprocess_config(cfg)
+        cfg = inprocess_config(cfg)
         self.frames = _FrameSlot(cfg.camera.encoding, cfg.camera.jpeg_quality)
         super().__init__(cfg, frame_sink=self.frames)
         self.peer = _CompanionPeer()
@@ -174,7 +174,7 @@ class InProcessSitl(SitlServer):
         return self.frames.latest
 
 
-def _inprocess_config(cfg: SitlConfig) -> SitlConfig:
+def inprocess_config(cfg: SitlConfig) -> SitlConfig:
     """``cfg`` in lockstep, without MAVLink ports (the control listener binds a free loopback
     port that nobody uses)."""
     data = cfg.model_dump()
@@ -353,7 +353,7 @@ class _OneOpenCVThread:
                     cv2.setNumThreads(self._before)
 
 
-_one_opencv_thread = _OneOpenCVThread()
+one_opencv_thread = _OneOpenCVThread()
 
 
 @contextlib.contextmanager
@@ -361,7 +361,7 @@ def inprocess_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, ru
     """A :data:`~companion.app.VehicleOpener`: the connected in-process SITL, closed on exit."""
     _check_inprocess(cfg, opts, lockstep)
     with contextlib.ExitStack() as stack:
-        stack.enter_context(_one_opencv_thread())
+        stack.enter_context(one_opencv_thread())
         sitl = InProcessSitl(sitl_config_for(opts))
         stack.callback(sitl.close)
         link = InProcessLink(cfg.link, sitl)

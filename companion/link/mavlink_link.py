@@ -185,10 +185,7 @@ class MavlinkLink(VehicleLink):
         rates_hz = self.default_rates_hz() if rates_hz is None else rates_hz
         results: dict[str, str] = {}
         for name, hz in rates_hz.items():
-            msg_id = getattr(ardupilotmega, f"MAVLINK_MSG_ID_{name}", None)
-            if msg_id is None or not math.isfinite(hz) or hz < 0:
-                raise ValueError(f"cannot request {name} at {hz} Hz: unknown message or bad rate")
-            params = [float(msg_id), 1e6 / hz if hz > 0 else -1.0]
+            params = list(interval_params(name, hz))
             try:
                 self._command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, params,
                               f"SET_MESSAGE_INTERVAL({name})", retries=0)  # fmt: skip
@@ -259,13 +256,7 @@ class MavlinkLink(VehicleLink):
 
     def default_rates_hz(self) -> dict[str, float]:
         """What the companion needs: fast attitude and position, slower landed state."""
-        fast, slow = self.cfg.telemetry_rate_hz, self.cfg.status_rate_hz
-        rates = {"ATTITUDE": fast, "LOCAL_POSITION_NED": fast, "EXTENDED_SYS_STATE": slow,
-                 "HOME_POSITION": HOME_POSITION_RATE_HZ if slow > 0 else 0.0}
-        rates = {name: hz for name, hz in rates.items() if hz > 0}
-        if self.cfg.stop_unread_streams:  # 0 Hz: SET_MESSAGE_INTERVAL -1, the stream stops
-            rates.update(dict.fromkeys(UNREAD_STREAMS, 0.0))
-        return rates
+        return default_rates_hz(self.cfg)
 
     def _command(
         self, command: int, params: Sequence[float], name: str, hint: str = "",
@@ -444,6 +435,27 @@ class MavlinkLink(VehicleLink):
             f"{self.cfg.connection}; the link keeps listening and resumes by itself - hold, "
             "check the radio or cable, and retry when link_alive() is True"
         )
+
+
+def default_rates_hz(cfg: LinkConfig) -> dict[str, float]:
+    """The streams the companion asks for on connect (message name -> Hz; 0 stops a stream): fast
+    attitude and position, slower landed state."""
+    fast, slow = cfg.telemetry_rate_hz, cfg.status_rate_hz
+    rates = {"ATTITUDE": fast, "LOCAL_POSITION_NED": fast, "EXTENDED_SYS_STATE": slow,
+             "HOME_POSITION": HOME_POSITION_RATE_HZ if slow > 0 else 0.0}
+    rates = {name: hz for name, hz in rates.items() if hz > 0}
+    if cfg.stop_unread_streams:  # 0 Hz: SET_MESSAGE_INTERVAL -1, the stream stops
+        rates.update(dict.fromkeys(UNREAD_STREAMS, 0.0))
+    return rates
+
+
+def interval_params(name: str, hz: float) -> tuple[float, float]:
+    """MAV_CMD_SET_MESSAGE_INTERVAL's param1 and param2 for ``name`` at ``hz`` (0: stop it), as
+    sent (the wire then rounds them to float32); ValueError for an unknown message or a bad rate."""
+    msg_id = getattr(ardupilotmega, f"MAVLINK_MSG_ID_{name}", None)
+    if msg_id is None or not math.isfinite(hz) or hz < 0:
+        raise ValueError(f"cannot request {name} at {hz} Hz: unknown message or bad rate")
+    return float(msg_id), 1e6 / hz if hz > 0 else -1.0
 
 
 def _is_complaint(msg: Any) -> bool:

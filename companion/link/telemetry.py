@@ -137,7 +137,7 @@ def _system_time(msg: Any, now_s: float) -> dict[str, Any]:
     return {"time_boot_ms": int(msg.time_boot_ms)}
 
 
-def _with(snapshot: VehicleSnapshot, changes: dict[str, Any]) -> VehicleSnapshot:
+def with_changes(snapshot: VehicleSnapshot, changes: dict[str, Any]) -> VehicleSnapshot:
     """``dataclasses.replace`` without its per-field getattr and ``__init__``: a snapshot has no
     validation to rerun, and this runs for every message (five per lockstep frame)."""
     new = object.__new__(VehicleSnapshot)
@@ -176,4 +176,4 @@ def apply_message(
     if kind == frame_marker and hasattr(msg, "time_boot_ms"):
         changes["frame_time_boot_ms"] = int(msg.time_boot_ms)
     changes["received_s"] = now_s
-    return _with(snapshot, changes)
+    return with_changes(snapshot, changes)

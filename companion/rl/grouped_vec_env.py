@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from collections.abc import Callable, Sequence
+from functools import partial
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -29,12 +30,12 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 from companion.errors import ConfigError
 
 
-def _serve(remote: Connection, parent_remote: Connection, factories: CloudpickleWrapper) -> None:
+def _serve(remote: Connection, parent_remote: Connection, maker: CloudpickleWrapper) -> None:
     """A worker: builds its group of envs and says whether it could (None, or the exception),
     then answers the parent's commands until "close"."""
     parent_remote.close()
     try:
-        group = DummyVecEnv(factories.var)
+        group: VecEnv = maker.var()
     except Exception as exc:  # noqa: BLE001 - the parent raises it
         _send_error(remote, exc)
         remote.close()
@@ -68,9 +69,10 @@ def _send_error(remote: Connection, exc: Exception) -> None:
         remote.send(RuntimeError(f"{type(exc).__name__}: {exc}"))
 
 
-def _answer(group: DummyVecEnv, cmd: str, data: Any) -> Any:
+def _answer(group: VecEnv, cmd: str, data: Any) -> Any:
     """What a worker answers to one command (the envs' own seeds, auto-reset and
-    ``terminal_observation`` are the ``DummyVecEnv``'s)."""
+    ``terminal_observation`` are the group's: a ``DummyVecEnv``'s, or a batched env's, which
+    behaves alike)."""
     if cmd == "step":
         group.step_async(data)
         return (*group.step_wait(), group.reset_infos)
@@ -90,30 +92,49 @@ def _answer(group: DummyVecEnv, cmd: str, data: Any) -> Any:
     raise NotImplementedError(f"unknown command {cmd!r}")
 
 
+def group_sizes(n_envs: int, n_workers: int) -> list[int]:
+    """``n_envs`` envs in ``n_workers`` groups, in order, sizes differing by at most one (7 in 3:
+    3, 2, 2)."""
+    if n_envs < 1:
+        raise ConfigError("a grouped vec env needs at least one env")
+    if not 1 <= n_workers <= n_envs:
+        raise ConfigError(f"n_workers must be between 1 and the number of envs ({n_envs}), got {n_workers}")
+    base, extra = divmod(n_envs, n_workers)
+    return [base + (1 if k < extra else 0) for k in range(n_workers)]
+
+
 class GroupedSubprocVecEnv(VecEnv):
     """``len(factories)`` envs in ``n_workers`` processes, in order, the group sizes differing by
-    at most one (7 envs in 3 workers: 3, 2, 2). If any worker cannot build its envs, every
-    worker is stopped and its exception raised here."""
+    at most one (7 envs in 3 workers: 3, 2, 2), each group a ``DummyVecEnv``; or, with
+    :meth:`of_groups`, any vec envs, one per worker (the batched env's batches). If any worker
+    cannot build its envs, every worker is stopped and its exception raised here."""
 
     def __init__(self, factories: Sequence[Callable[[], gym.Env[Any, Any]]], n_workers: int,
                  start_method: str = "forkserver") -> None:
-        if not factories:
-            raise ConfigError("a grouped vec env needs at least one env")
-        if not 1 <= n_workers <= len(factories):
-            raise ConfigError(f"n_workers must be between 1 and the number of envs ({len(factories)}), got {n_workers}")
-        base, extra = divmod(len(factories), n_workers)
-        self._slices, start = [], 0
-        for k in range(n_workers):
-            stop = start + base + (1 if k < extra else 0)
-            self._slices.append(slice(start, stop))
-            start = stop
-        groups = [list(factories[part]) for part in self._slices]
+        sizes = group_sizes(len(factories), n_workers)
+        starts = np.cumsum([0, *sizes]).tolist()
+        makers = [partial(DummyVecEnv, list(factories[a:b])) for a, b in zip(starts[:-1], starts[1:], strict=True)]
+        self._start(makers, sizes, start_method)
+
+    @classmethod
+    def of_groups(cls, makers: Sequence[Callable[[], VecEnv]], sizes: Sequence[int],
+                  start_method: str = "forkserver") -> GroupedSubprocVecEnv:
+        """One worker per maker, each holding the vec env it makes (of ``sizes[k]`` envs)."""
+        if not makers or len(makers) != len(sizes) or min(sizes) < 1:
+            raise ConfigError(f"a grouped vec env needs one size (at least 1) per group, got {list(sizes)}")
+        venv = cls.__new__(cls)
+        venv._start(makers, sizes, start_method)
+        return venv
+
+    def _start(self, makers: Sequence[Callable[[], VecEnv]], sizes: Sequence[int], start_method: str) -> None:
+        starts = np.cumsum([0, *sizes]).tolist()
+        self._slices = [slice(a, b) for a, b in zip(starts[:-1], starts[1:], strict=True)]
         ctx: Any = mp.get_context(start_method)  # typeshed's BaseContext lacks Process and Pipe
         self.remotes: list[Connection] = []
         self.processes: list[Any] = []
-        for group in groups:
+        for maker in makers:
             remote, work_remote = ctx.Pipe()
-            proc = ctx.Process(target=_serve, args=(work_remote, remote, CloudpickleWrapper(group)), daemon=True)
+            proc = ctx.Process(target=_serve, args=(work_remote, remote, CloudpickleWrapper(maker)), daemon=True)
             proc.start()
             work_remote.close()
             self.remotes.append(remote)
@@ -128,7 +149,7 @@ class GroupedSubprocVecEnv(VecEnv):
             raise
         self.remotes[0].send(("spaces", None))
         observation_space, action_space = self._recv(self.remotes[0])
-        super().__init__(len(factories), observation_space, action_space)
+        super().__init__(starts[-1], observation_space, action_space)
 
     def _stop_workers(self, wait_s: float) -> None:
         """Wait up to ``wait_s`` for each worker to exit, terminate any still running."""

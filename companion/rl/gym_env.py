@@ -70,10 +70,18 @@ def stick_values(action: np.ndarray, action_dims: int, descent_throttle: float) 
     a = np.asarray(action, dtype=np.float64).reshape(-1)
     if a.shape != (action_dims,):
         raise ValueError(f"expected an action of {action_dims} values {ACTION_AXES[:action_dims]}, got shape {a.shape}")
-    pitch, roll = a[0], a[1]
-    throttle = a[2] if action_dims >= 3 else descent_throttle
-    yaw = a[3] if action_dims == 4 else 0.0
-    return np.array([roll, pitch, yaw, throttle])
+    return stick_rows(a[None, :], descent_throttle)[0]
+
+
+def stick_rows(actions: np.ndarray, descent_throttle: float) -> np.ndarray:
+    """Actions ``(n, action_dims)`` (float64) -> sticks ``(n, 4)`` (roll, pitch, yaw, throttle):
+    the values are copied, so a row is the same as that action alone (the batched env's)."""
+    n, action_dims = actions.shape
+    sticks = np.empty((n, 4))
+    sticks[:, 0], sticks[:, 1] = actions[:, 1], actions[:, 0]  # roll, pitch
+    sticks[:, 2] = actions[:, 3] if action_dims == 4 else 0.0
+    sticks[:, 3] = actions[:, 2] if action_dims >= 3 else descent_throttle
+    return sticks
 
 
 def _never_lost(cfg: CompanionConfig) -> CompanionConfig:

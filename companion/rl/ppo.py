@@ -224,13 +224,15 @@ def learning_curve(episodes: list[dict[str, Any]], blocks: int = 10, size: int |
 
 def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = None,
             config_path: Path | None = None, on_episode: EpisodeHook | None = None,
-            workers: int | None = None) -> dict[str, Any]:
+            workers: int | None = None, batched: bool = False) -> dict[str, Any]:
     """Train, save ``model.zip`` and ``train_episodes.jsonl``, evaluate, write ``results.json``.
     A folder with ``results.json`` is done (returned as is); one with a checkpoint continues.
     Either only for the settings it was started with: others are refused first, so a finished
     run is never reported as the answer to a run with other options.
     ``workers``: processes the ``n_envs`` envs run in (default one per env); speed only, the
-    episodes are the same (:mod:`companion.rl.grouped_vec_env`), so it is not a setting."""
+    episodes are the same (:mod:`companion.rl.grouped_vec_env`), so it is not a setting; nor is
+    ``batched``: the training envs are :class:`~companion.rl.batched_env.BatchedLandingEnv`'s,
+    the same episodes without the session (``workers`` processes, default this one)."""
     cfg = cfg or CompanionConfig()
     out_dir.mkdir(parents=True, exist_ok=True)
     _check_same_settings(out_dir, settings)
@@ -239,7 +241,7 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
     task = task_summary(record_run_config(out_dir, cfg, config_path))
     torch.set_num_threads(cfg.learner.torch_threads)
     venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess,
-                        workers=workers)
+                        workers=workers, batched=batched)
     try:
         wall0 = time.monotonic()
         with (out_dir / "train_episodes.jsonl").open("a") as log_file:

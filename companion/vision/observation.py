@@ -1,8 +1,9 @@
 """The paper's 15-value observation: one order, one normalisation, one "pad not visible" code.
 
 Every consumer (session, dataset, policy, gym env) builds its vector with
-:meth:`Observation.to_vector` and names columns with :data:`OBS_NAMES`; nothing else may
-normalise telemetry or encode the pad. The vector, in order (value = raw / scale):
+:meth:`Observation.to_vector` (the batched env, for many at once, with the functions it uses,
+:func:`pad_features` and :func:`normalised`) and names columns with :data:`OBS_NAMES`; nothing
+else may normalise telemetry or encode the pad. The vector, in order (value = raw / scale):
 
 ====  ======================  =========================================================
  #    name                    normalisation
@@ -30,6 +31,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from companion.vision.perception import PadDetection
 
@@ -94,12 +96,8 @@ class Observation:
         """The last three entries of the vector (see the module docstring)."""
         if self.pad is None:
             return PAD_NOT_VISIBLE
-        width, height = self.image_size_px
-        u = (self.pad.u_px - (width - 1) / 2.0) / (width / 2.0)
-        v = (self.pad.v_px - (height - 1) / 2.0) / (height / 2.0)
-        r = self.pad.radius_px / (height / 2.0)
-        clip = PAD_CENTRE_CLIP
-        return (float(np.clip(u, -clip, clip)), float(np.clip(v, -clip, clip)), float(np.clip(r, 0.0, PAD_RADIUS_CLIP)))
+        u, v, r = pad_features(self.pad.u_px, self.pad.v_px, self.pad.radius_px, self.image_size_px)
+        return (float(u), float(v), float(r))
 
     def to_vector(self) -> np.ndarray:
         """The normalised ``float32`` vector of length :data:`OBS_DIM`, in :data:`OBS_NAMES` order."""
@@ -107,10 +105,29 @@ class Observation:
         telemetry = np.array(
             [*self.position_ned_m, roll, pitch, wrap_angle_rad(yaw), *self.velocity_ned_m_s, *self.rates_frd_rad_s]
         )
-        vector = np.concatenate([telemetry / np.array(OBS_SCALES), self.pad_features()]).astype(np.float32)
+        vector = normalised(telemetry, self.pad_features())
         if not np.all(np.isfinite(vector)):  # overflow of huge but finite telemetry
             raise ValueError(f"observation vector is not finite: {vector}")
         return vector
+
+
+def pad_features(u_px: ArrayLike, v_px: ArrayLike, radius_px: ArrayLike,
+                 image_size_px: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A visible pad's three entries of the vector (see the module docstring), element by element:
+    for one detection or for arrays of them (companion/rl/batched_env.py), the same values."""
+    width, height = image_size_px
+    u = (np.asarray(u_px) - (width - 1) / 2.0) / (width / 2.0)
+    v = (np.asarray(v_px) - (height - 1) / 2.0) / (height / 2.0)
+    r = np.asarray(radius_px) / (height / 2.0)
+    clip = PAD_CENTRE_CLIP
+    return np.clip(u, -clip, clip), np.clip(v, -clip, clip), np.clip(r, 0.0, PAD_RADIUS_CLIP)
+
+
+def normalised(telemetry: np.ndarray, pad: ArrayLike) -> np.ndarray:
+    """Raw telemetry ``(..., 12)`` in vector order (yaw already wrapped) and the pad's features
+    ``(..., 3)`` -> the ``float32`` vectors ``(..., 15)``, element by element (a stack of them as
+    each alone); not checked for overflow (:meth:`Observation.to_vector` checks)."""
+    return np.concatenate([telemetry / np.array(OBS_SCALES), np.asarray(pad, dtype=np.float64)], axis=-1).astype(np.float32)
 
 
 def pad_visible(vector: np.ndarray) -> bool:
