@@ -30,13 +30,15 @@ constraints: setup
 setup-browser:
 	command -v chromium >/dev/null 2>&1 || (apt-get update -q && apt-get install -y -q chromium)
 
-# Two workers: most of the suite waits on real-time flights (real autopilots, real-time SITL),
-# so two at once take about 10 minutes where one took 16 on the 2-core machine.
+# Four workers on two cores: much of the suite waits on real-time flights (real autopilots,
+# real-time SITL, the console), so four at once overlap those waits with the CPU-bound tests:
+# 9.1 minutes where two workers took 13.2 (bench/README.md, "The test suite").
+TEST_WORKERS ?= 4
 test: setup
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 test-all: setup
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m ''
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m ''
 
 demo: setup
 	$(VENV)/bin/col demo
