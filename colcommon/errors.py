@@ -65,3 +65,8 @@ class SimulatorError(ColError):
 
 class InputDeviceError(ColError):
     """A human input device (gamepad, joystick) cannot be found or read."""
+
+
+class SessionOnly(ColError):
+    """Something only the session's own episode loop flies or records as it would (the batched
+    evaluation met it: an episode that could not start); evaluate through the session."""

@@ -15,6 +15,7 @@ from colcommon.errors import (
     LinkError,
     LinkLost,
     LinkTimeout,
+    SessionOnly,
     SimulatorError,
 )
 
@@ -30,4 +31,5 @@ __all__ = [
     "CheckpointError",
     "SimulatorError",
     "InputDeviceError",
+    "SessionOnly",
 ]

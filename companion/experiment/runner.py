@@ -21,14 +21,14 @@ from collections.abc import Generator, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 from tqdm import tqdm
 
 from colcommon.numeric_env import append_record
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
-from companion.errors import ColError, ConfigError
+from companion.errors import ColError, ConfigError, SessionOnly
 from companion.experiment.grid import (
     START_SEEDS_PER_REPLICATE,
     ExperimentSetup,
@@ -43,6 +43,7 @@ from companion.experiment.tasks import CONFIG_COPY, RunFn, init_worker, run_trai
 if TYPE_CHECKING:
     from companion.app import RunResult
     from companion.control.session import EpisodeRecord
+    from companion.experiment.batched_eval import BatchedEvaluation
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +89,17 @@ def run_training(setup: ExperimentSetup, run: TrainingRun, out_dir: Path) -> lis
     return results
 
 
-def trial_result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord], evaluation: RunResult,
+class Evaluation(Protocol):
+    """What a trial's result takes from its evaluation, through the session or batched."""
+
+    @property
+    def records(self) -> Sequence[object]: ...
+
+    @property
+    def successes(self) -> int: ...
+
+
+def trial_result(setup: ExperimentSetup, trial: Trial, train: Sequence[EpisodeRecord], evaluation: Evaluation,
             eval_wall_s: float, checkpoint: str) -> TrialResult:
     """A trial's result from its training episodes (a prefix of the run) and its evaluation."""
     intervening = [r for r in train if r.phase == Phase.INTERVENTION.value]
@@ -123,12 +134,42 @@ def train_run(setup: ExperimentSetup, cfg: CompanionConfig, run: TrainingRun, ru
     return train
 
 
-def evaluate_checkpoint(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
+def evaluate_checkpoint(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> Evaluation:
     """The final policy alone on the held-out starts; only the episode records are kept.
 
     With ``eval_inprocess`` the SITL runs in this process (the same episodes, half the CPU:
-    :mod:`companion.experiment.inprocess`), else in its own process over MAVLink.
+    :mod:`companion.experiment.inprocess`), else in its own process over MAVLink; with
+    ``eval_batched`` too, through the batched env's session-free lanes, without the session's
+    messages (the same episodes again: :mod:`companion.experiment.batched_eval`), unless the
+    config needs the session.
     """
+    if setup.exp.eval_inprocess and setup.exp.eval_batched:
+        batched = _evaluate_batched(setup, cfg, checkpoint, trial_dir)
+        if batched is not None:
+            return batched
+    return _evaluate_session(setup, cfg, checkpoint, trial_dir)
+
+
+def _evaluate_batched(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path,
+                      trial_dir: Path) -> BatchedEvaluation | None:
+    """The batched evaluation and its records; None where only the session flies it (logged)."""
+    from companion.experiment.batched_eval import evaluate_batched, why_not_batched, write_records
+
+    reason = why_not_batched(cfg, setup.config_path)
+    if reason is not None:
+        log.info("evaluation through the session: %s", reason)
+        return None
+    try:
+        evaluation = evaluate_batched(cfg, checkpoint, setup.exp.eval_seed, setup.exp.eval_runs, setup.config_path)
+    except SessionOnly as exc:
+        log.warning("%s; evaluating through the session instead", exc)
+        return None
+    write_records(evaluation.records, trial_dir / "eval_episodes.jsonl")
+    return evaluation
+
+
+def _evaluate_session(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
+    """The session's evaluation: ``run_episodes`` over MAVLink or in-process."""
     from companion.app import RunOptions, open_vehicle, run_episodes
     from companion.experiment.inprocess import inprocess_vehicle
 

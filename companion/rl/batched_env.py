@@ -242,14 +242,8 @@ class BatchedLandingEnv(VecEnv):
     def _observe(self, indices: list[int]) -> np.ndarray:
         """The observation vectors of these envs' latest frames; a vector that is not finite
         repeats that env's last good one (``LandingEnv._observe``)."""
-        telemetry = np.array([_telemetry_row(self.lanes[i].sitl.reported) for i in indices])
-        pads = np.tile(np.array(PAD_NOT_VISIBLE), (len(indices), 1))
-        seen = [(row, pad) for row, i in enumerate(indices) if (pad := self._detect(self.lanes[i])) is not None]
-        if seen:
-            rows = [row for row, _ in seen]
-            found = [pad for _, pad in seen]
-            u, v, r = (np.array([getattr(p, name) for p in found]) for name in ("u_px", "v_px", "radius_px"))
-            pads[rows] = np.column_stack(pad_features(u, v, r, self._image_size))
+        telemetry = np.array([telemetry_row(self.lanes[i].sitl.reported) for i in indices])
+        pads = pad_rows([self._detect(self.lanes[i]) for i in indices], self._image_size)
         vectors = normalised(telemetry, pads)
         for row, i in enumerate(indices):
             lane = self.lanes[i]
@@ -261,22 +255,41 @@ class BatchedLandingEnv(VecEnv):
         return vectors
 
     def _detect(self, lane: LandingLane) -> PadDetection | None:
-        """The observer's detection: None without a camera, or for a corrupt image."""
-        image = lane.sitl.image()
-        if image is None:
-            return None
-        try:
-            return self._detector.detect(image)
-        except ValueError as exc:
-            log.warning("camera frame unusable: %s (pad counted as not visible)", exc)
-            return None
+        return detect_pad(self._detector, lane.sitl.image())
 
 
-def _telemetry_row(snap: VehicleSnapshot | None) -> tuple[float, ...]:
-    """The 12 telemetry values of the vector, raw, in order (yaw wrapped), as ``Observation``."""
+def detect_pad(detector: PadDetector, image: np.ndarray | None) -> PadDetection | None:
+    """The observer's detection: None without a camera image, or for a corrupt one."""
+    if image is None:
+        return None
+    try:
+        return detector.detect(image)
+    except ValueError as exc:
+        log.warning("camera frame unusable: %s (pad counted as not visible)", exc)
+        return None
+
+
+def telemetry_row(snap: VehicleSnapshot | None,
+                  position_ned_m: tuple[float, float, float] | None = None) -> tuple[float, ...]:
+    """The 12 telemetry values of the vector, raw, in order (yaw wrapped), as ``Observation``;
+    ``position_ned_m`` replaces the snapshot's position as ``Observer.observe``'s does (the
+    session passes the position relative to home)."""
     assert snap is not None  # a lane is connected before it is observed
     roll, pitch, yaw = snap.attitude_rad
-    return (*snap.position_ned_m, roll, pitch, wrap_angle_rad(yaw), *snap.velocity_ned_m_s, *snap.rates_frd_rad_s)
+    position = snap.position_ned_m if position_ned_m is None else position_ned_m
+    return (*position, roll, pitch, wrap_angle_rad(yaw), *snap.velocity_ned_m_s, *snap.rates_frd_rad_s)
+
+
+def pad_rows(detections: Sequence[PadDetection | None], image_size_px: tuple[int, int]) -> np.ndarray:
+    """The pad's three entries of the vector for each detection (None: not visible), ``(n, 3)``:
+    :func:`~companion.vision.observation.pad_features` on the stack of the visible ones."""
+    pads = np.tile(np.array(PAD_NOT_VISIBLE), (len(detections), 1))
+    seen = [(row, pad) for row, pad in enumerate(detections) if pad is not None]
+    if seen:
+        rows = [row for row, _ in seen]
+        u, v, r = (np.array([getattr(pad, name) for _, pad in seen]) for name in ("u_px", "v_px", "radius_px"))
+        pads[rows] = np.column_stack(pad_features(u, v, r, image_size_px))
+    return pads
 
 
 def _check(n_envs: int, action_dims: int, descent_throttle: float, cfg: CompanionConfig) -> None:

@@ -67,13 +67,14 @@ class LandingLane:
         self.begin(None)
 
     # ----- episode start ---------------------------------------------------------------------
-    def begin(self, seed: int | None) -> VehicleSnapshot:
-        """Start an episode (``LandingEnv._start``): the first frame the agent observes."""
-        for attempt in range(1, START_ATTEMPTS + 1):
+    def begin(self, seed: int | None, attempts: int = START_ATTEMPTS) -> VehicleSnapshot:
+        """Start an episode (``LandingEnv._start``): the first frame the agent observes.
+        ``attempts=1`` starts as the session's ``EpisodeRunner.run`` does, without a retry."""
+        for attempt in range(1, attempts + 1):
             try:
                 return self._start(seed)
             except LinkError as exc:
-                if attempt == START_ATTEMPTS:
+                if attempt == attempts:
                     raise
                 log.warning("episode start %s failed (%s); trying again", seed, exc)
         raise AssertionError("unreachable")

@@ -76,7 +76,8 @@ def _evaluate(setup: ExperimentSetup, checkpoint: Path, folder: Path, inprocess:
     monkeypatch.setattr(SimulatorClient, "truth", recording_truth)
     if inprocess:
         monkeypatch.setattr(app, "start_sitl", no_sitl_process)
-    exp = setup.exp.model_copy(update={"eval_runs": EVAL_RUNS, "eval_inprocess": inprocess})
+    exp = setup.exp.model_copy(update={"eval_runs": EVAL_RUNS, "eval_inprocess": inprocess,
+                                       "eval_batched": False})  # the session's path both ways
     run = TrainingRun("P1", "demo", 0, 2, (2,))
     folder.mkdir()
     evaluate_checkpoint(dataclasses.replace(setup, exp=exp), trial_config(setup, run), checkpoint, folder)
