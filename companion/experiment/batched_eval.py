@@ -2,7 +2,7 @@
 the batched env, in one process, flying exactly the episodes of the session's evaluation.
 
 Why: evaluation is most of a grid's episodes (19,200 of the paper grid's 20,544). The in-process
-session (:mod:`companion.experiment.inprocess`) still composes, packs and folds every MAVLink
+session (:mod:`companion.inprocess`) still composes, packs and folds every MAVLink
 message and runs the link, observer and episode loop around each step; the lanes of
 :mod:`companion.rl.batched_env` (:class:`~companion.rl.landing_lane.LandingLane`) fly the same
 vehicle, camera and detector without them. ``lanes`` starts fly side by side, a lane taking the
@@ -99,7 +99,7 @@ from companion.control.arbiter import Phase
 from companion.control.safety import SetpointLimiter
 from companion.control.session import EpisodeRecord
 from companion.errors import ColError, SessionOnly
-from companion.experiment.inprocess import one_opencv_thread, sitl_config_for
+from companion.inprocess import one_opencv_thread, sitl_config_for
 from companion.learning.checkpoint import load_checkpoint
 from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import disagreement

@@ -49,7 +49,7 @@ class ExperimentConfig(Section):
         True, description="Demo and Int train once to the largest count; each count's checkpoint is a prefix")
     eval_inprocess: bool = Field(
         True, description="evaluation runs fly the lockstep SITL in the trial's own process (the same "
-        "episodes as over MAVLink, half the CPU; companion/experiment/inprocess.py); false: over MAVLink")
+        "episodes as over MAVLink, half the CPU; companion/inprocess.py); false: over MAVLink")
     eval_batched: bool = Field(
         True, description="with eval_inprocess: the held-out starts fly through the batched env's lanes, "
         "without the session's link, messages and observer (the same episodes, less CPU; "

@@ -138,7 +138,7 @@ def evaluate_checkpoint(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint
     """The final policy alone on the held-out starts; only the episode records are kept.
 
     With ``eval_inprocess`` the SITL runs in this process (the same episodes, half the CPU:
-    :mod:`companion.experiment.inprocess`), else in its own process over MAVLink; with
+    :mod:`companion.inprocess`), else in its own process over MAVLink; with
     ``eval_batched`` too, through the batched env's session-free lanes, without the session's
     messages (the same episodes again: :mod:`companion.experiment.batched_eval`), unless the
     config needs the session.
@@ -171,7 +171,7 @@ def _evaluate_batched(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: 
 def _evaluate_session(setup: ExperimentSetup, cfg: CompanionConfig, checkpoint: Path, trial_dir: Path) -> RunResult:
     """The session's evaluation: ``run_episodes`` over MAVLink or in-process."""
     from companion.app import RunOptions, open_vehicle, run_episodes
-    from companion.experiment.inprocess import inprocess_vehicle
+    from companion.inprocess import inprocess_vehicle
 
     vehicle = inprocess_vehicle if setup.exp.eval_inprocess else open_vehicle
     with tempfile.TemporaryDirectory(dir=trial_dir) as tmp:  # 100 runs of tlogs and checkpoints: dropped

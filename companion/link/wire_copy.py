@@ -6,7 +6,7 @@ sender's system, component and sequence number in its header. :func:`wire_copy` 
 message from the payload alone: the same packing as on the wire, the same unpacking as
 pymavlink's decoder, but no framing, no checksum (two pure-Python CRC passes were most of a
 message's cost) and no byte-by-byte parser. The in-process SITL hands its messages over this
-way (:mod:`companion.experiment.inprocess`); ``tests/link/test_wire_copy.py`` checks it against
+way (:mod:`companion.inprocess`); ``tests/link/test_wire_copy.py`` checks it against
 the real pack-and-parse for every message either side sends.
 
 Signed messages cannot be copied like this (the signature covers the framed bytes): callers use

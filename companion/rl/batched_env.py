@@ -67,7 +67,7 @@ from companion.commands import CommandMapper, body_velocity
 from companion.config import CompanionConfig
 from companion.control.safety import SetpointLimiter
 from companion.errors import ColError, ConfigError
-from companion.experiment.inprocess import one_opencv_thread, sitl_config_for
+from companion.inprocess import one_opencv_thread, sitl_config_for
 from companion.link.base import SetpointLimits, VehicleSnapshot
 from companion.link.setpoints import VelocitySetpoint
 from companion.rl.grouped_vec_env import GroupedSubprocVecEnv, group_sizes

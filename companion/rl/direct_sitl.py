@@ -1,12 +1,12 @@
 """One lockstep SITL vehicle driven by direct calls: the SITL side of the batched landing env.
 
-:class:`~companion.experiment.inprocess.InProcessSitl` runs the SITL server's frame loop and
+:class:`~companion.inprocess.InProcessSitl` runs the SITL server's frame loop and
 hands every message over as the companion's parser would make it (composed, packed, unpacked,
 folded into a new snapshot). :class:`DirectSitl` keeps what of that decides an episode and drops
 the messages themselves:
 
 - the vehicle (JSBSim and the autopilot cascade) is :func:`sitl.personality.make_vehicle`'s, built
-  from the same configuration (:func:`~companion.experiment.inprocess.inprocess_config`);
+  from the same configuration (:func:`~companion.inprocess.inprocess_config`);
 - a frame is the server's lockstep frame: ``frame_steps`` FDM steps, then the streams that the
   server's :class:`~sitl.telemetry.TelemetryScheduler` says are due, then the frame marker
   (SYSTEM_TIME); the image is the server's :func:`~sitl.server.render_frame` (pixel noise and
@@ -44,7 +44,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 import companion.link.px4_modes as px4_modes
 from companion.config import LinkConfig
 from companion.errors import ConfigError, LinkTimeout, SimulatorError
-from companion.experiment.inprocess import inprocess_config
+from companion.inprocess import inprocess_config
 from companion.link.base import LANDED_STATES, VehicleSnapshot
 from companion.link.mavlink_link import default_rates_hz, interval_params
 from companion.link.telemetry import initial_snapshot, with_changes

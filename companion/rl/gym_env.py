@@ -39,7 +39,7 @@ from companion.config import CompanionConfig
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import ColError, ConfigError, LinkError
-from companion.experiment.inprocess import inprocess_vehicle
+from companion.inprocess import inprocess_vehicle
 from companion.link import open_link
 from companion.link.base import VehicleSnapshot
 from companion.simulator import SimulatorClient
@@ -97,7 +97,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
     ``connection`` (a MAVLink connection string to a lockstep SITL) it also needs
     ``simulator`` (HOST:PORT of that SITL's control surface) for resets and ground truth.
     With ``inprocess=True`` the SITL runs in this process and thread
-    (:mod:`companion.experiment.inprocess`: the same server, link and camera code, only the
+    (:mod:`companion.inprocess`: the same server, link and camera code, only the
     transport replaced): the same episodes, a fraction of the CPU per step.
     """
 

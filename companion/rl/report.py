@@ -80,15 +80,16 @@ def final_evaluations(grid: Path) -> dict[str, Any]:
 def col_result(results_jsonl: Path, interactions: int = 20) -> dict[str, Any]:
     """CoL's held-out completion at ``interactions`` episodes, one value per finished trial
     (read as the experiment reads its results: a trial's first ``ok`` line counts)."""
-    from companion.experiment.results import ResultsFile
-
-    done = ResultsFile(results_jsonl).load()
     seen: dict[str, float] = {}
-    for result in done:
-        t = result.trial
-        if (result.status == "ok" and t.condition == "col" and t.interactions == interactions
-                and t.key not in seen):
-            seen[t.key] = result.eval_successes / result.eval_runs
+    for line in results_jsonl.read_text().splitlines():
+        try:  # read here, not through companion.experiment (which builds on companion.rl)
+            result = json.loads(line)
+        except json.JSONDecodeError:  # a torn last line, as the experiment skips it
+            continue
+        t = result["trial"]
+        if (result["status"] == "ok" and t["condition"] == "col" and t["interactions"] == interactions
+                and t["key"] not in seen):
+            seen[t["key"]] = result["eval_successes"] / result["eval_runs"]
     rates = list(seen.values())
     return {"interactions": interactions, "trials": len(rates),
             "success_rate_mean": round(statistics.fmean(rates), 4) if rates else None,

@@ -21,7 +21,7 @@ from companion.control.arbiter import Phase
 from companion.control.ask import AskAction, AskEvent, HelpAsker, threshold_for
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
-from companion.experiment.inprocess import inprocess_vehicle
+from companion.inprocess import inprocess_vehicle
 from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import EnsembleSnapshot

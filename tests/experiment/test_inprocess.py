@@ -30,8 +30,8 @@ from companion.experiment.grid import (
     TrainingRun,
     load_experiment,
 )
-from companion.experiment.inprocess import inprocess_vehicle
 from companion.experiment.runner import evaluate_checkpoint, train_run, trial_config
+from companion.inprocess import inprocess_vehicle
 from companion.simulator import SimulatorClient
 
 REPO = Path(__file__).resolve().parents[2]
