@@ -32,7 +32,7 @@ setup-browser:
 
 # Four workers on two cores: much of the suite waits on real-time flights (real autopilots,
 # real-time SITL, the console), so four at once overlap those waits with the CPU-bound tests:
-# 9.1 minutes where two workers took 13.2 (bench/README.md, "The test suite").
+# 9.1 minutes where two workers took 13.2 (bench/results/make-test-n4-2026-12-02.txt, -n2-).
 TEST_WORKERS ?= 4
 test: setup
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup

@@ -106,8 +106,7 @@ from companion.learning.ensemble import disagreement
 from companion.learning.learner import Learner
 from companion.learning.snapshot import PolicySnapshot
 from companion.link.base import SetpointLimits, VehicleSnapshot
-from companion.link.setpoints import VelocitySetpoint
-from companion.rl.batched_env import detect_pad, pad_rows, telemetry_row
+from companion.rl.batched_env import check_link_limits, detect_pad, pad_rows, telemetry_row
 from companion.rl.gym_env import DESCENT_THROTTLE
 from companion.rl.landing_lane import LandingLane
 from companion.vision.observation import normalised
@@ -398,12 +397,6 @@ class BatchedEvaluator:
             out[has] = self._limiter.rate_limited(out[has], last, self.period_s)
         for flight, row in zip(flights, out, strict=True):
             flight.last_setpoint = row.copy()
-        self._check_link_limits(out)
+        check_link_limits(self._link_limits, out)
         return out
 
-    def _check_link_limits(self, setpoints: np.ndarray) -> None:
-        """The link's own limits (ValueError, as the session's link raises for them)."""
-        too_fast = np.abs(setpoints[:, :3]).max(axis=1) > self._link_limits.max_speed_m_s
-        too_fast |= np.abs(setpoints[:, 3]) > self._link_limits.max_yaw_rate_rad_s
-        for row in np.flatnonzero(too_fast):
-            self._link_limits.check_velocity(VelocitySetpoint(*(float(v) for v in setpoints[row])))

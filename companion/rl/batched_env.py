@@ -84,6 +84,15 @@ from companion.vision.perception import PadDetection, PadDetector
 log = logging.getLogger(__name__)
 
 
+def check_link_limits(limits: SetpointLimits, setpoints: np.ndarray) -> None:
+    """The link's last line of defence over rows of setpoints, with the link's own error
+    (ValueError, as the session's link raises for a config whose commands exceed it)."""
+    too_fast = np.abs(setpoints[:, :3]).max(axis=1) > limits.max_speed_m_s
+    too_fast |= np.abs(setpoints[:, 3]) > limits.max_yaw_rate_rad_s
+    for i in np.flatnonzero(too_fast):
+        limits.check_velocity(VelocitySetpoint(*(float(v) for v in setpoints[i])))
+
+
 class BatchedLandingEnv(VecEnv):
     """``n_envs`` landing envs stepped together in this process (module docstring): the episodes
     of ``n_envs`` ``LandingEnv(inprocess=True)`` in a ``DummyVecEnv``, without their session,
@@ -198,15 +207,8 @@ class BatchedLandingEnv(VecEnv):
         if has.any() and self.period_s > 0:
             out[has] = self._limiter.rate_limited(out[has], self._last_sp[has], self.period_s)
         self._last_sp, self._has_last = out.copy(), np.ones(self.num_envs, dtype=bool)
-        self._check_link_limits(out)
+        check_link_limits(self._link_limits, out)
         return out
-
-    def _check_link_limits(self, setpoints: np.ndarray) -> None:
-        """The link's last line of defence, with its own error (a config whose commands exceed it)."""
-        too_fast = np.abs(setpoints[:, :3]).max(axis=1) > self._link_limits.max_speed_m_s
-        too_fast |= np.abs(setpoints[:, 3]) > self._link_limits.max_yaw_rate_rad_s
-        for i in np.flatnonzero(too_fast):
-            self._link_limits.check_velocity(VelocitySetpoint(*(float(v) for v in setpoints[i])))
 
     @staticmethod
     def _fly(lane: LandingLane, setpoint: list[float]) -> VehicleSnapshot:
