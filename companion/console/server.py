@@ -256,6 +256,11 @@ class ConsoleServer:
         self._tell_roles()
 
     # ----- messages from a page ------------------------------------------------------------------
+    def _correct_role(self, client: _Client) -> None:
+        """A watching page that acted as the pilot is out of step (a stale page, a page edited by
+        hand): it is told its role again, so its buttons and banner show what it may do."""
+        client.offer_json(json.dumps(self._role_of(client)))
+
     def _refuse(self, client: _Client, reason: str) -> None:
         assert client.refusals is not None
         new = client.refusals.last != reason
@@ -270,11 +275,13 @@ class ConsoleServer:
             if kind == "input":
                 checked = messages.check_input(message)
                 if client is not self.pilot:
+                    self._correct_role(client)
                     raise Refused("this page watches: its sticks do not fly (ask for the pilot role)")
                 self.session.human.feed(checked)
             elif kind == "command":
                 name = messages.command_name(message)
                 if client is not self.pilot:
+                    self._correct_role(client)
                     raise Refused(f"only the pilot's page can {name.replace('_', ' ')}; this page watches")
                 self._command(name, message)
             elif kind == "role":

@@ -199,7 +199,7 @@ def ray_instance(workers: int, address: str | None) -> Iterator[Any]:
             kwargs = {"address": address}
         t0 = time.monotonic()
         try:
-            ray.init(log_to_driver=False, configure_logging=False, **kwargs)
+            _init(ray, kwargs, local=address is None)
         except Exception as exc:
             if address is None:
                 raise
@@ -210,6 +210,7 @@ def ray_instance(workers: int, address: str | None) -> Iterator[Any]:
                 "or ~/.ray/auth_token) in this command's environment") from exc
         finally:
             _restore_sigterm(sigterm)  # ray.init replaces the driver's handler
+            temp_dir = kwargs.get("_temp_dir", temp_dir)  # a second start has a folder of its own
         log.info("Ray %s in %.1f s: %s", "connected" if address else "local instance started",
                  time.monotonic() - t0, ray.cluster_resources())
         yield ray
@@ -223,6 +224,60 @@ def ray_instance(workers: int, address: str | None) -> Iterator[Any]:
         if temp_dir is not None:
             shutil.rmtree(temp_dir, ignore_errors=True)
         _restore_env(saved_env)
+
+
+LOCAL_START_ATTEMPTS = 2
+"""Ray waits a fixed 30 s for its raylet to register; on a loaded machine a first start can miss that."""
+
+
+def _init(ray: Any, kwargs: dict[str, Any], local: bool) -> None:
+    """``ray.init``; a local instance that timed out while starting is stopped (what it started is
+    killed: Ray does not) and started once more in a fresh session folder."""
+    for attempt in range(1, (LOCAL_START_ATTEMPTS if local else 1) + 1):
+        try:
+            ray.init(log_to_driver=False, configure_logging=False, **kwargs)
+            return
+        except Exception as exc:
+            if not local or attempt == LOCAL_START_ATTEMPTS or "timed out" not in str(exc):
+                if local:
+                    _kill_ray_descendants()
+                raise
+            log.warning("the local Ray instance did not start (%s); starting it again", exc)
+            _kill_ray_descendants()
+            ray.shutdown()
+            shutil.rmtree(kwargs["_temp_dir"], ignore_errors=True)
+            kwargs["_temp_dir"] = tempfile.mkdtemp(prefix="colray-", dir=os.path.dirname(kwargs["_temp_dir"]))
+
+
+def _kill_ray_descendants() -> None:
+    """SIGKILL this process's descendants that run Ray's code (its servers, raylet, workers)."""
+    for pid in ray_descendants(os.getpid()):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+def ray_descendants(root: int) -> list[int]:
+    """Descendants of ``root`` whose command line names Ray's package (Linux /proc; [] elsewhere)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], list(children.get(root, []))
+    while todo:
+        pid = todo.pop()
+        todo += children.get(pid, [])
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"/ray/" in cmdline:
+            found.append(pid)
+    return found
 
 
 def _restore_sigterm(handler: Any) -> None:

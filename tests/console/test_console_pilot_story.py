@@ -65,18 +65,22 @@ def _two_tabs_and_a_broken_pad(context, url: str, tmp_path: Path):  # type: igno
     assert b.evaluate("window.colConsole.role.role") == "watch"
     assert "is the pilot" in b.inner_text("#banner") and b.is_disabled("#stop") and b.is_disabled("#start")
     shot(b, tmp_path, "console_watching.png")
-    b.evaluate("window.colConsole.role.role = 'pilot'; document.getElementById('stop').disabled = false")
-    b.click("#stop")  # even a page that thinks it may: refused by the server, and told
+    # even a page that thinks it may (in one task, before the server corrects its role): refused, and told
+    b.evaluate("window.colConsole.role.role = 'pilot'; const stop = document.getElementById('stop');"
+               "stop.disabled = false; stop.click()")
     _wait(b, "window.colConsole.errors.some((e) => e.text.includes('only the pilot'))", 10)
+    _wait(b, "window.colConsole.role.role === 'watch' && document.getElementById('stop').disabled", 10)  # told again
     assert a.evaluate("window.colConsole.role.role") == "pilot"
     assert a.evaluate("window.colConsole.status.run.state") == "running"
-    b.close()
 
     a.evaluate("window.__pad.axes[0] = NaN; window.__pad.axes[1] = 1e308; window.__pad.axes[2] = -Infinity;"
                "window.__pad.axes[3] = 5")
     _wait(a, "window.colConsole.errors.some((e) => e.text.startsWith('input refused'))", 10)
     _wait(a, "window.colConsole.lastStep.who === 'hold'", 20)  # the good input aged out: the vehicle holds
     shot(a, tmp_path, "console_refused_input.png")
+    _wait(b, "window.colConsole.lastStep.who === 'hold'", 20)  # the watcher sees the hold and still who flies
+    assert "HOLDING POSITION" in b.inner_text("#banner") and "is the pilot" in b.inner_text("#banner")
+    b.close()
     a.evaluate("window.__pad.axes.fill(0)")
     return a
 

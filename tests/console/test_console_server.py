@@ -91,6 +91,8 @@ async def _scenario(tmp_path: Path) -> None:
         await second.send_json(PILOT)
         assert "is the pilot" in (await _next_of(second, "error"))["message"]
         await second.send_json({**INPUT, "buttons": [0] * 8})
+        corrected = await _next_of(second, "role")  # a watcher that acts as the pilot is told its role again
+        assert corrected["role"] == "watch" and corrected["pilot_page"] == role["page"]
         await first.send_json(INPUT)
         assert await _until(lambda: human.status().messages == 2)
         assert human.status().command.override_held  # the pilot's override is not dropped

@@ -398,3 +398,64 @@ def test_a_grid_on_a_ray_start_cluster_with_token_authentication(tmp_path: Path,
                 os.kill(pid, signal.SIGKILL)
             shutil.rmtree(temp_dir, ignore_errors=True)
     assert left == []
+
+
+class _SlowStartRay:
+    """A stand-in for the ``ray`` module whose first ``init`` times out as Ray's does under load."""
+
+    def __init__(self, failures: int, message: str = "The current node timed out during startup.") -> None:
+        self.failures, self.message, self.temp_dirs, self.shutdowns = failures, message, [], 0
+
+    def init(self, **kwargs: object) -> None:
+        self.temp_dirs.append(kwargs.get("_temp_dir"))
+        if len(self.temp_dirs) <= self.failures:
+            raise Exception(self.message)
+
+    def shutdown(self) -> None:
+        self.shutdowns += 1
+
+
+def test_a_local_start_that_timed_out_is_killed_and_started_once_more(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    killed: list[int] = []
+    monkeypatch.setattr(ray_backend, "_kill_ray_descendants", lambda: killed.append(1))
+    first = tmp_path / "colray-a"
+    first.mkdir()
+    ray = _SlowStartRay(failures=1)
+    kwargs: dict[str, object] = {"_temp_dir": str(first)}
+    ray_backend._init(ray, kwargs, local=True)
+    assert len(ray.temp_dirs) == 2 and ray.temp_dirs[1] != str(first) and killed == [1]
+    assert not first.exists() and Path(ray.temp_dirs[1]).is_dir()  # the failed start's session folder is gone
+    shutil.rmtree(ray.temp_dirs[1])
+
+    twice = _SlowStartRay(failures=2)  # a second timeout is the caller's error, and nothing is left running
+    with pytest.raises(Exception, match="timed out"):
+        ray_backend._init(twice, {"_temp_dir": str(tmp_path / "colray-b")}, local=True)
+    assert len(twice.temp_dirs) == ray_backend.LOCAL_START_ATTEMPTS and killed == [1, 1, 1]
+    for leftover in twice.temp_dirs[1:]:
+        shutil.rmtree(leftover, ignore_errors=True)
+
+    other = _SlowStartRay(failures=1, message="bad argument")  # not a slow start: no second try
+    with pytest.raises(Exception, match="bad argument"):
+        ray_backend._init(other, {"_temp_dir": str(tmp_path / "colray-c")}, local=True)
+    assert len(other.temp_dirs) == 1
+    cluster = _SlowStartRay(failures=1)  # a cluster is not started here: nothing to kill or retry
+    with pytest.raises(Exception, match="timed out"):
+        ray_backend._init(cluster, {"address": "127.0.0.1:6379"}, local=False)
+    assert cluster.temp_dirs == [None] and killed == [1, 1, 1, 1]  # the "bad argument" start was killed too
+
+
+def test_ray_descendants_finds_only_this_process_s_ray_children(tmp_path: Path) -> None:
+    fake_ray = tmp_path / "site-packages" / "ray" / "raylet.py"
+    fake_ray.parent.mkdir(parents=True)
+    fake_ray.write_text("import time\ntime.sleep(60)\n")
+    other = tmp_path / "other.py"
+    other.write_text("import time\ntime.sleep(60)\n")
+    rayish = subprocess.Popen([sys.executable, str(fake_ray)])
+    plain = subprocess.Popen([sys.executable, str(other)])
+    try:
+        found = ray_backend.ray_descendants(os.getpid())
+        assert rayish.pid in found and plain.pid not in found
+    finally:
+        rayish.kill(), plain.kill()
+        rayish.wait(), plain.wait()

@@ -84,11 +84,20 @@ function onRole(r) {
   if (r.role === "pilot") { b.textContent = `PILOT (page ${r.page})`; b.className = "badge pilot"; }
   else { b.textContent = r.pilot_page ? `watching: page ${r.pilot_page} flies` : "watching: no pilot"; b.className = "badge"; }
   document.getElementById("take-role").textContent = r.role === "pilot" ? "Give up the pilot role" : "Fly from this page";
-  if (r.role !== "pilot") {
-    showBanner(r.pilot_page ? `This page watches; page ${r.pilot_page} is the pilot. Its sticks and buttons are the only ones that act.`
-      : `This page watches and nobody is the pilot. Press "Fly from this page" to fly.`, "watch");
-  } else { hideBanner(); }
+  if (r.role !== "pilot") showBanner(watchText(), "watch"); else hideBanner();
   updateControls();
+}
+
+// A watching page is always told who flies, also while the vehicle holds (it cannot act on a hold).
+function watchText() {
+  const r = C.role || {};
+  return r.pilot_page ? `This page watches; page ${r.pilot_page} is the pilot. Its sticks and buttons are the only ones that act.`
+    : `This page watches and nobody is the pilot. Press "Fly from this page" to fly.`;
+}
+
+function showHold(reason) {
+  if (isPilot()) showBanner(`HOLDING POSITION: ${reason}`);
+  else showBanner(`HOLDING POSITION (${reason.split(".")[0]}). ${watchText()}`, "watch");
 }
 
 function onStatus(s) {
@@ -109,8 +118,9 @@ function onStatus(s) {
   }
   showStudy(s.study);
   if (s.input.hold_reason) {
-    showBanner(`HOLDING POSITION: ${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
+    showHold(`${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
   } else if (C.connected && isPilot()) { hideBanner(); }
+  else if (C.connected && C.role) { showBanner(watchText(), "watch"); }
   updateControls(); drawMap(); drawVideo();  // a run's end shows at once, not at the next frame
 }
 
@@ -163,7 +173,7 @@ function onStep(m) {
   if (C.steps.length > 20000) C.steps.splice(0, 10000);
   C.track.push({ n: m.position_ne_m[0], e: m.position_ne_m[1], who: m.who });
   if (m.who === "hold" && !(C.status && C.status.input.hold_reason)) {
-    showBanner("HOLDING POSITION: the person's input is lost. The policy does not take over.");
+    showHold("the person's input is lost. The policy does not take over.");
   }
   drawMap(); drawInset();
   if (!lastFrame) drawVideo();
