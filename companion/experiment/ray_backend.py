@@ -258,15 +258,21 @@ def _kill_ray_descendants() -> None:
             pass
 
 
-def ray_descendants(root: int) -> list[int]:
-    """Descendants of ``root`` whose command line names Ray's package (Linux /proc; [] elsewhere)."""
+def process_children() -> dict[int, list[int]]:
+    """Every process's children, from /proc (Linux; empty elsewhere)."""
     children: dict[int, list[int]] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
             continue
-        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+        children.setdefault(ppid, []).append(int(stat.parent.name))
+    return children
+
+
+def ray_descendants(root: int) -> list[int]:
+    """Descendants of ``root`` whose command line names Ray's package (Linux /proc; [] elsewhere)."""
+    children = process_children()
     found, todo = [], list(children.get(root, []))
     while todo:
         pid = todo.pop()

@@ -44,20 +44,8 @@ REPO = Path(__file__).resolve().parents[2]
 DRIVER_PID = os.getpid()
 """This process: the driver of the Ray instances the tests start (captured by value by Ray)."""
 
-def _children() -> dict[int, list[int]]:
-    """Every process's children, from /proc."""
-    children: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        children.setdefault(ppid, []).append(int(stat.parent.name))
-    return children
-
-
 def _descendants(pid: int) -> list[int]:
-    children, found, todo = _children(), [], [pid]
+    children, found, todo = ray_backend.process_children(), [], [pid]
     while todo:
         for child in children.get(todo.pop(), []):
             if _alive(child):
