@@ -106,3 +106,15 @@ def _realtime_test(request: pytest.FixtureRequest) -> Iterator[None]:
     """Single tests marked ``realtime``."""
     with _realtime_if_marked(request):
         yield
+
+
+def grouped_first(items: list[pytest.Item]) -> list[pytest.Item]:
+    """The tests of an xdist group (the long real-time and CPU-bound units) before the others,
+    each set in collection order. ``--dist loadgroup`` hands work out in collection order; a long
+    group collected late (tests/numeric) started when the short tests were nearly done and made
+    the suite wait for it alone."""
+    return sorted(items, key=lambda item: item.get_closest_marker("xdist_group") is None)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    items[:] = grouped_first(items)

@@ -61,3 +61,14 @@ def test_other_tests_keep_the_priority_the_suite_started_with() -> None:
     from tests.conftest import STARTING_NICE
 
     assert os.getpriority(os.PRIO_PROCESS, 0) == STARTING_NICE
+
+
+def test_grouped_tests_are_handed_out_first_in_their_collection_order(tmp_path: Path) -> None:
+    (tmp_path / "test_a_loose.py").write_text(LOOSE)
+    (tmp_path / "test_b_grouped.py").write_text(GROUPED)
+    out = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--collect-only", "-q",
+                          "-o", "addopts=", "--rootdir", str(tmp_path), "-c", os.devnull,
+                          "-p", "tests.conftest", str(tmp_path)],
+                         capture_output=True, text=True, timeout=240, cwd=Path(__file__).resolve().parents[1]).stdout
+    names = re.findall(r"test_(grouped|loose)\[(\d)\]", out)
+    assert names == [("grouped", k) for k in "0123"] + [("loose", k) for k in "0123"], out

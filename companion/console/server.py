@@ -194,6 +194,7 @@ class ConsoleServer:
                     log.warning("console page %d: socket error %r", client.page, ws.exception())
                     break
         finally:
+            log.info("console page %d disconnected (close code %s)", client.page, ws.close_code)
             sender.cancel()
             self.clients.remove(client)
             client.refusals.flush()

@@ -27,7 +27,7 @@ from companion.testing.autopilots import (
 )
 from companion.testing.conformance import PrecLandOutcome, fly_precland
 
-pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("cpu-heavy")]
+pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
 KINDS = ("px4", "ardupilot")
 NEAR_M = 1.0  # "lands near the point": within this, horizontally, in the vehicle's own frame
 

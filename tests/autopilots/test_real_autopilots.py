@@ -39,7 +39,7 @@ from companion.testing.conformance import Outcome, differences, fly_script
 
 # one xdist worker runs this group in turn: real PX4 SIH flies in real time and lost the
 # companion ("Connection to mission computer lost") beside the CPU-bound trial reruns
-pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(900), pytest.mark.xdist_group("cpu-heavy")]
+pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(900), pytest.mark.xdist_group("real-autopilots")]
 COL = str(Path(sys.executable).with_name("col"))
 KINDS = ("px4", "ardupilot")
 SHORT = """

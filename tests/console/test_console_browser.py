@@ -39,7 +39,7 @@ navigator.getGamepads = () => [{
 }];
 """
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(900)]
 SHOTS = os.environ.get("COL_CONSOLE_SHOTS")  # a folder: keep the screenshots (docs/images)
 
 
@@ -69,6 +69,7 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
         yield line.split()[1], run_dir
     finally:
         stop(proc)
+        print((tmp_path / "console.log").read_text()[-6000:])  # shown when the test fails
 
 
 PATIENCE = 4.0
@@ -164,5 +165,10 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
         assert float(r["pitch"]) == pytest.approx(0.8, abs=1e-6)
         assert float(r["roll"]) == float(r["yaw"]) == float(r["throttle"]) == 0.0
     assert record["interventions"] == 1 and record["human_samples"] == len(rows)
-    assert record["outcome"] in ("stopped", "touchdown", "timeout")
+    # The policy has learned only the person's "forward" and flies on after the release; on a busy
+    # machine the Stop may come after it reached the fence. Either way the episode ended after the
+    # intervention, and not on an error.
+    assert record["outcome"] in ("stopped", "touchdown", "timeout", "fence")
+    if record["outcome"] == "fence":
+        assert record["steps"] > person_steps[-1] + 1
     assert (run_dir / "flight_000-000.png").is_file() and (run_dir / "episode_000.mp4").is_file()

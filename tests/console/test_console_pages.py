@@ -26,7 +26,7 @@ from tests.console.test_console_browser import (
     shot,
 )
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(180)]
 
 
 class Served:

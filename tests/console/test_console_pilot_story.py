@@ -28,7 +28,7 @@ from tests.console.test_console_browser import (
     shot,
 )
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(1500)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(1500)]
 PITCH = 0.3  # the good stick before the pad breaks: every recorded row must carry exactly it
 
 
@@ -65,9 +65,14 @@ def _two_tabs_and_a_broken_pad(context, url: str, tmp_path: Path):  # type: igno
     assert b.evaluate("window.colConsole.role.role") == "watch"
     assert "is the pilot" in b.inner_text("#banner") and b.is_disabled("#stop") and b.is_disabled("#start")
     shot(b, tmp_path, "console_watching.png")
-    # even a page that thinks it may (in one task, before the server corrects its role): refused, and told
-    b.evaluate("window.colConsole.role.role = 'pilot'; const stop = document.getElementById('stop');"
-               "stop.disabled = false; stop.click()")
+    # even a page that thinks it may (in one task, before the server corrects its role): refused, and told.
+    # A page the server dropped at load (it fell MAX_QUEUED messages behind) reconnects within a second
+    # and has no role meanwhile; the forgery waits for it in the same task, as a page would.
+    b.evaluate("""async () => {
+      const C = window.colConsole;
+      while (!(C.connected && C.role)) await new Promise((done) => setTimeout(done, 50));
+      C.role.role = 'pilot'; const stop = document.getElementById('stop'); stop.disabled = false; stop.click();
+    }""")
     _wait(b, "window.colConsole.errors.some((e) => e.text.includes('only the pilot'))", 10)
     _wait(b, "window.colConsole.role.role === 'watch' && document.getElementById('stop').disabled", 10)  # told again
     assert a.evaluate("window.colConsole.role.role") == "pilot"
@@ -85,10 +90,20 @@ def _two_tabs_and_a_broken_pad(context, url: str, tmp_path: Path):  # type: igno
     return a
 
 
-def _the_flagged_demonstration(a) -> dict:  # type: ignore[no-untyped-def]
+def _the_flagged_demonstration(a, tmp_path: Path) -> dict:  # type: ignore[no-untyped-def]
     a.click("#next")  # episode 0 ends; episode 1 waits at the ready gate
     _wait(a, "window.colConsole.status.run.state === 'ready' && window.colConsole.records.length === 1", 60)
+    a.evaluate("window.__clicks = []; document.addEventListener('click', (e) => window.__clicks.push("
+               "[e.target.id || e.target.tagName, e.clientX, e.clientY]), true)")
     a.click("#go")  # nobody touches the sticks in episode 1
+    try:
+        _wait(a, "window.colConsole.status.run.state !== 'ready'", 15)
+    except Exception:  # what the page clicked, and where the button was
+        print("clicks", a.evaluate("window.__clicks"), "go at", a.evaluate(
+            "JSON.stringify(document.getElementById('go').getBoundingClientRect())"), "connected",
+            a.evaluate("window.colConsole.connected"), "role", a.evaluate("JSON.stringify(window.colConsole.role)"))
+        shot(a, tmp_path, "console_go_lost.png")
+        raise
     _wait(a, "window.colConsole.status.run.state === 'running' && window.colConsole.lastStep.episode === 1"
              " && window.colConsole.lastStep.step >= 15", 120)
     a.click("#next")
@@ -118,13 +133,14 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
             try:
                 a = _two_tabs_and_a_broken_pad(context, url, tmp_path)
                 seen = a.evaluate("window.colConsole.steps")
-                record = _the_flagged_demonstration(a)
+                record = _the_flagged_demonstration(a, tmp_path)
                 _wait(a, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 10)
                 shot(a, tmp_path, "console_discarded.png")
             finally:
                 context.close()
     finally:
         stop(proc)
+        print(log.read_text()[-6000:])  # pytest shows it when the test fails: what the console logged
     text = log.read_text()
     assert "refused a message: input refused" in text
     with (run_dir / "human.csv").open() as f:

@@ -84,7 +84,7 @@ function onRole(r) {
   if (r.role === "pilot") { b.textContent = `PILOT (page ${r.page})`; b.className = "badge pilot"; }
   else { b.textContent = r.pilot_page ? `watching: page ${r.pilot_page} flies` : "watching: no pilot"; b.className = "badge"; }
   document.getElementById("take-role").textContent = r.role === "pilot" ? "Give up the pilot role" : "Fly from this page";
-  if (r.role !== "pilot") showBanner(watchText(), "watch"); else hideBanner();
+  refreshBanner();
   updateControls();
 }
 
@@ -93,6 +93,25 @@ function watchText() {
   const r = C.role || {};
   return r.pilot_page ? `This page watches; page ${r.pilot_page} is the pilot. Its sticks and buttons are the only ones that act.`
     : `This page watches and nobody is the pilot. Press "Fly from this page" to fly.`;
+}
+
+// The one place that decides the banner from what the page knows (status, last step, role): the
+// status (4 Hz) and the steps (10 Hz) must not take turns at it, or a hold flickers away.
+const INPUT_LOST = "the person's input is lost. The policy does not take over.";
+const HOLD_STEP_FRESH_MS = 3000;  // a hold step older than this (the episode ended, a new one starts) is history
+function stepHolds() {
+  const st = runState();
+  return !!C.lastStep && C.lastStep.who === "hold" && ACTIVE.includes(st) && st !== "ready"
+    && C.now() - lastStepAt < HOLD_STEP_FRESH_MS;
+}
+
+function refreshBanner() {
+  const s = C.status;
+  if (s && s.input.hold_reason) showHold(`${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
+  else if (stepHolds()) showHold(INPUT_LOST);
+  else if (!C.connected) return;  // the lost-link banner stays until the page is back
+  else if (isPilot()) hideBanner();
+  else if (C.role) showBanner(watchText(), "watch");
 }
 
 function showHold(reason) {
@@ -117,10 +136,7 @@ function onStatus(s) {
     document.getElementById("episodes").value = r.episodes;
   }
   showStudy(s.study);
-  if (s.input.hold_reason) {
-    showHold(`${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
-  } else if (C.connected && isPilot()) { hideBanner(); }
-  else if (C.connected && C.role) { showBanner(watchText(), "watch"); }
+  refreshBanner();
   updateControls(); drawMap(); drawVideo();  // a run's end shows at once, not at the next frame
 }
 
@@ -172,9 +188,7 @@ function onStep(m) {
     wallMs: m.wall_ms, forward: m.setpoint.forward_m_s, frame: m.frame_number });
   if (C.steps.length > 20000) C.steps.splice(0, 10000);
   C.track.push({ n: m.position_ne_m[0], e: m.position_ne_m[1], who: m.who });
-  if (m.who === "hold" && !(C.status && C.status.input.hold_reason)) {
-    showHold("the person's input is lost. The policy does not take over.");
-  }
+  if (m.who === "hold" || C.steps.length < 2 || C.steps[C.steps.length - 2].who === "hold") refreshBanner();
   drawMap(); drawInset();
   if (!lastFrame) drawVideo();
 }
