@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 import time
 from collections.abc import Callable, Iterator
@@ -15,6 +16,18 @@ from companion.testing.fake_vehicle import FakeVehicle
 from tests.mav_client import MavTestClient
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def _take_ctrl_c_back() -> None:
+    """A suite started in the background of a non-interactive shell (``make test &``) inherits
+    SIGINT ignored, and so does every process it starts: the tests that press Ctrl-C on a grid
+    or an evaluation would then test nothing but the ignore. Python's own handler again, here
+    and (exec resets a handled signal) in every child."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+_take_ctrl_c_back()
 
 
 @pytest.fixture
