@@ -45,7 +45,7 @@ def truth(v: SimVehicle) -> dict[str, Any]:
         "landed": v.landed,
         "armed": v.armed,
         "mode": v.mode.px4_name,
-        "touchdown": None if td is None else {**asdict(td), "time_boot_ms": int(round(td.time_s * 1000))},
+        "touchdown": None if td is None else {**asdict(td), "time_boot_ms": int(round(td.time_s * 1000)) + v.clock_offset_ms},
         "precision_landing": v.precision_landing_state(),
         **failsafe_times(v),
     }
@@ -78,8 +78,10 @@ def info(v: SimVehicle, camera_uri: str | None, clock: str) -> dict[str, Any]:
     }
 
 
-def handle_request(v: SimVehicle, req: dict[str, Any], camera_uri: str | None, clock: str) -> dict[str, Any]:
-    """Apply one request; raises RequestError for bad arguments."""
+def handle_request(v: SimVehicle, req: dict[str, Any], camera_uri: str | None, clock: str,
+                   episode_start_s: float | None = None) -> dict[str, Any]:
+    """Apply one request; raises RequestError for bad arguments. ``episode_start_s``: a
+    reset's episode starts at this simulation time (see :meth:`SimVehicle.reset_episode`)."""
     cmd = req["cmd"]
     if cmd == "info":
         return {"ok": True, **info(v, camera_uri, clock)}
@@ -89,7 +91,7 @@ def handle_request(v: SimVehicle, req: dict[str, Any], camera_uri: str | None, c
         seed = req.get("seed")
         if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool) or seed < 0):
             raise RequestError("seed must be a non-negative integer or null")
-        start = v.reset_episode(seed)
+        start = v.reset_episode(seed, start_s=episode_start_s)
         return {
             "ok": True,
             "episode": v.episode,

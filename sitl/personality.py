@@ -211,6 +211,8 @@ class CopterVehicle(SimVehicle):
     sends_frame_marker = False
     default_rates_hz = {M.MAVLINK_MSG_ID_HEARTBEAT: 1.0, M.MAVLINK_MSG_ID_SYS_STATUS: 1.0}
 
+    CLOCK_STAMPS = ("_booting_until_s", "_next_prearm_report_s", "_settle_s")
+
     def __init__(self, cfg: SitlConfig) -> None:
         self.copter_mode = CopterMode.STABILIZE
         self._guided_velocity = False
@@ -433,9 +435,9 @@ class CopterVehicle(SimVehicle):
         return True
 
     # ----- simulator control surface ------------------------------------------------------
-    def reset_episode(self, seed: int | None) -> np.ndarray:
+    def reset_episode(self, seed: int | None, start_s: float | None = None) -> np.ndarray:
         """As the PX4 personality: hovering at the start, armed, holding (here: BRAKE)."""
-        start = super().reset_episode(seed)
+        start = super().reset_episode(seed, start_s)
         self.copter_mode = CopterMode.BRAKE
         self.mode = Mode.AUTO_LOITER
         return start

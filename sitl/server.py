@@ -31,7 +31,7 @@ from sitl.handler import CameraInfo, MessageHandler
 from sitl.personality import make_vehicle
 from sitl.signing import SitlSigning
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
-from sitl.vehicle import AUTOPILOT, CAMERA, Outgoing, SimVehicle
+from sitl.vehicle import AUTOPILOT, CAMERA, FIRST_LOCKSTEP_EPISODE_S, Outgoing, SimVehicle
 
 if TYPE_CHECKING:
     import numpy as np
@@ -275,6 +275,7 @@ class SitlServer:
         self.handler = MessageHandler(self.vehicle, self.scheduler, cam_info)
         self._rebooted = False  # the autopilot was silent for a reboot: its streams start afresh
         self._next_camera_heartbeat_s = 0.0
+        self._ran_free = False  # lockstep frames ran before anyone answered them (in real time)
 
     def _open_camera(self) -> _CameraFeed:
         return _CameraFeed(self.cfg, self.vehicle, self._frame_sink)
@@ -364,6 +365,7 @@ class SitlServer:
                 break
             self._poll(remaining)
         if not self.stats.attached:
+            self._ran_free = True
             return
         if self._answered:
             self.stats.answered += 1
@@ -574,13 +576,25 @@ class SitlServer:
         self._flush_events()
         self._flush_all()
 
+    def _first_episode_start_s(self) -> float | None:
+        """Where a reset's episode starts if it is a lockstep run's first, before anyone drove
+        the clock (it ran in real time until now): :data:`FIRST_LOCKSTEP_EPISODE_S`. None: at
+        the next whole second, as always (real time; an in-process SITL, driven from its first
+        frame; any later episode)."""
+        if self.lockstep and self._ran_free and self.vehicle.episode == 0:
+            return FIRST_LOCKSTEP_EPISODE_S
+        return None
+
     def control_reply(self, line: bytes) -> dict[str, Any]:
         """The reply to one control-surface request line, applied between frames (also the
         entry of an in-process client, which has no socket to send it over)."""
         camera_uri = self.camera.server.uri if self.camera else None
         try:
             req = parse_request(line)
-            reply = handle_request(self.vehicle, req, camera_uri, self.cfg.clock.mode)
+            offset_ms = self.vehicle.clock_offset_ms
+            reply = handle_request(self.vehicle, req, camera_uri, self.cfg.clock.mode,
+                                   episode_start_s=self._first_episode_start_s())
+            self._next_camera_heartbeat_s -= (self.vehicle.clock_offset_ms - offset_ms) / 1000.0
             if req["cmd"] == "reset":
                 self.scheduler = self._fresh_scheduler()
                 self.handler.scheduler = self.scheduler

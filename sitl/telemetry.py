@@ -140,7 +140,7 @@ def gps_raw_int(v: SimVehicle) -> mavlink.MAVLink_message:
     vn, ve, _ = s.velocity_ned_m_s
     vel = int(round(math.hypot(vn, ve) * 100))
     cog = int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)) if vel > 0 else 65535
-    return M.MAVLink_gps_raw_int_message(int(v.time_s * 1e6), M.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, 80, 120, vel, cog, 14)
+    return M.MAVLink_gps_raw_int_message(v.time_usec, M.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, 80, 120, vel, cog, 14)
 
 
 def home_local(v: SimVehicle) -> tuple[float, float, float]:
@@ -153,7 +153,7 @@ def home_position(v: SimVehicle) -> mavlink.MAVLink_message:
     """Home's true latitude, longitude and AMSL altitude; its x, y, z in the reported local frame."""
     n, e, d = v.home_ned_m
     lat, lon, alt = ned_to_geodetic(v, n, e, d)
-    return M.MAVLink_home_position_message(lat, lon, alt, *home_local(v), [1, 0, 0, 0], 0, 0, 0, int(v.time_s * 1e6))
+    return M.MAVLink_home_position_message(lat, lon, alt, *home_local(v), [1, 0, 0, 0], 0, 0, 0, v.time_usec)
 
 
 def battery_status(v: SimVehicle) -> mavlink.MAVLink_message:
@@ -171,7 +171,7 @@ def vfr_hud(v: SimVehicle) -> mavlink.MAVLink_message:
 
 def system_time(v: SimVehicle) -> mavlink.MAVLink_message:
     """The lockstep frame marker (see docs/protocols.md)."""
-    return M.MAVLink_system_time_message(UNIX_EPOCH_AT_BOOT_US + int(v.time_s * 1e6), v.time_boot_ms)
+    return M.MAVLink_system_time_message(UNIX_EPOCH_AT_BOOT_US + v.time_usec, v.time_boot_ms)
 
 
 def autopilot_version(v: SimVehicle) -> mavlink.MAVLink_message:

@@ -38,6 +38,14 @@ CAMERA = mavlink.MAV_COMP_ID_CAMERA
 FORCE_DISARM_MAGIC = 21196
 LANDED_SPEED_M_S = 0.5
 PREFLIGHT_DISARM_S = 10.0
+FIRST_LOCKSTEP_EPISODE_S = 3.0
+"""Simulation time of a lockstep run's first episode start. Until the companion's first reset
+the lockstep SITL runs in real time (nobody answers its frames yet), so the time it has
+reached depends on how long the companion took to start: about 2.1 s on an idle machine, over
+a minute on a loaded one. The episode's physics depends on its start time in the last bits
+(``start + k * dt`` rounds differently at 3 s and at 67 s), and those bits grow into other
+landings; so the first episode starts here whatever came before, which is where an unhurried
+start lands (the next whole second after 2.1 s), so that results made before the rule stand."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,8 @@ class SimVehicle:
         self.rejected_setpoints = 0
         self.rejected_targets = 0
         self.episode = 0
+        self.clock_offset_ms = 0
+        """Boot clock minus simulation clock (whole seconds): see :meth:`reset_episode`."""
         self._start_precland()
         spawn = (cfg.world.spawn_ne_m[0], cfg.world.spawn_ne_m[1], 0.0)
         self.home_ned_m = spawn
@@ -163,7 +173,14 @@ class SimVehicle:
 
     @property
     def time_boot_ms(self) -> int:
-        return int(round(self.dynamics.state.time_s * 1000.0))
+        """The boot clock: the simulation's, a whole number of seconds apart after
+        :meth:`reset_episode` with ``start_s`` (the same integer as before otherwise)."""
+        return int(round(self.dynamics.state.time_s * 1000.0)) + self.clock_offset_ms
+
+    @property
+    def time_usec(self) -> int:
+        """The boot clock in microseconds (GPS_RAW_INT, HOME_POSITION, SYSTEM_TIME)."""
+        return int(self.dynamics.state.time_s * 1e6) + 1000 * self.clock_offset_ms
 
     @property
     def landed(self) -> bool:
@@ -505,8 +522,30 @@ class SimVehicle:
         )
 
     # ----- simulator control surface ------------------------------------------------------
-    def reset_episode(self, seed: int | None) -> np.ndarray:
-        """Place the vehicle at a random start above the pad, hovering, armed, in hold."""
+    CLOCK_STAMPS: tuple[str, ...] = ()
+    """Simulation times the vehicle keeps across an episode reset (a personality's reboot and
+    pre-arm timers); the stamps of flight (setpoints, failsafe, landing) start afresh anyway."""
+
+    def _rebase_clock(self, next_whole_s: float, start_s: float) -> None:
+        """The simulation clock jumps from ``next_whole_s`` to ``start_s``, the boot clock does
+        not: the offset between them takes up the difference (whole seconds) and the stamps
+        kept keep their age."""
+        shift_s = next_whole_s - start_s
+        if shift_s != int(shift_s):
+            raise ValueError(f"an episode starts on a whole second of simulation time, got {start_s!r}")
+        self.clock_offset_ms += int(shift_s) * 1000
+        for name in self.CLOCK_STAMPS:
+            stamp = getattr(self, name)
+            if stamp is not None:
+                setattr(self, name, stamp - shift_s)
+
+    def reset_episode(self, seed: int | None, start_s: float | None = None) -> np.ndarray:
+        """Place the vehicle at a random start above the pad, hovering, armed, in hold.
+
+        ``start_s``: the episode starts at this simulation time whatever the time now (a
+        lockstep run's first episode: :data:`FIRST_LOCKSTEP_EPISODE_S`); the boot clock goes on
+        from where it was, to the next whole second, so nothing the world sees runs backwards.
+        """
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         # the disturbance has its own stream: the starts are those of an undisturbed run
@@ -517,6 +556,9 @@ class SimVehicle:
         # milliseconds of a 95.238 ms period) then round alike in every episode, so whatever
         # uses them (a pilot's timers) does not depend on when the episode began.
         t = float(math.ceil(self.time_s))
+        if start_s is not None:
+            self._rebase_clock(t, float(start_s))
+            t = float(start_s)
         self.world.restart(t, self.disturbance.vehicle_velocity_ne_m_s)
         start = self.world.episode_start(self.rng, t)
         self.dynamics = self._new_dynamics()

@@ -48,6 +48,10 @@ log = logging.getLogger(__name__)
 HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
 OFFBOARD_ATTEMPTS = 3
+LOCKSTEP_FRAME_PATIENCE_S = 300.0
+"""In lockstep a frame is waited for as long as the link lives (the link raises LinkLost after
+``link_lost_s`` of silence): a frame that came late on a starved machine is the same frame, and
+giving up after 2 s (as this once did) turned a busy machine into a recovery, another flight."""
 RETRY_STREAM_FRAMES = 5  # after a refusal: half a second of setpoints, so a lossy link delivers some  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
 
 
@@ -273,7 +277,7 @@ class EpisodeRunner:
         link = self.p.link
         if self.p.lockstep:
             try:
-                snap = link.wait_frame(self._frame_ms, timeout_s=max(2.0, 4 * self.period_s))
+                snap = link.wait_frame(self._frame_ms, timeout_s=LOCKSTEP_FRAME_PATIENCE_S)
             except LinkLost:  # the link's way of saying "silent": recover like in real time
                 return None
             if snap is not None:
