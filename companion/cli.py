@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
 import json
 import logging
 import os
@@ -31,6 +33,9 @@ def _setup(verbose: bool) -> None:
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     signal.signal(signal.SIGTERM, _terminate)
+    if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: where every thread is, on stderr (a hang's report)
+        with contextlib.suppress(AttributeError, ValueError, OSError, RuntimeError):  # a stderr with no file
+            faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 
 def _terminate(signum: int, _frame: object) -> None:

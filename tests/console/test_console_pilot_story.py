@@ -9,8 +9,10 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -136,11 +138,16 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
                 record = _the_flagged_demonstration(a, tmp_path)
                 _wait(a, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 10)
                 shot(a, tmp_path, "console_discarded.png")
+            except Exception:  # where the page and every thread of the console were, for the report
+                print("page status", a.evaluate("JSON.stringify(window.colConsole.status)") if "a" in locals() else None)
+                proc.send_signal(signal.SIGUSR1)
+                time.sleep(1.0)
+                raise
             finally:
                 context.close()
     finally:
         stop(proc)
-        print(log.read_text()[-6000:])  # pytest shows it when the test fails: what the console logged
+        print(log.read_text()[-20000:])  # pytest shows it when the test fails: what the console logged
     text = log.read_text()
     assert "refused a message: input refused" in text
     with (run_dir / "human.csv").open() as f:
