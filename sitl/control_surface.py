@@ -45,7 +45,7 @@ def truth(v: SimVehicle) -> dict[str, Any]:
         "landed": v.landed,
         "armed": v.armed,
         "mode": v.mode.px4_name,
-        "touchdown": None if td is None else {**asdict(td), "time_boot_ms": int(round(td.time_s * 1000)) + v.clock_offset_ms},
+        "touchdown": None if td is None else {**asdict(td), "time_boot_ms": v.boot_ms(td.time_s)},
         "precision_landing": v.precision_landing_state(),
         **failsafe_times(v),
     }

@@ -594,8 +594,8 @@ class SitlServer:
             offset_ms = self.vehicle.clock_offset_ms
             reply = handle_request(self.vehicle, req, camera_uri, self.cfg.clock.mode,
                                    episode_start_s=self._first_episode_start_s())
-            self._next_camera_heartbeat_s -= (self.vehicle.clock_offset_ms - offset_ms) / 1000.0
             if req["cmd"] == "reset":
+                self._next_camera_heartbeat_s -= (self.vehicle.clock_offset_ms - offset_ms) / 1000.0
                 self.scheduler = self._fresh_scheduler()
                 self.handler.scheduler = self.scheduler
                 self._answered = True  # a reset answers the frame: the next one shows the start

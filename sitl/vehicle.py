@@ -173,9 +173,12 @@ class SimVehicle:
 
     @property
     def time_boot_ms(self) -> int:
-        """The boot clock: the simulation's, a whole number of seconds apart after
-        :meth:`reset_episode` with ``start_s`` (the same integer as before otherwise)."""
-        return int(round(self.dynamics.state.time_s * 1000.0)) + self.clock_offset_ms
+        return self.boot_ms(self.dynamics.state.time_s)
+
+    def boot_ms(self, time_s: float) -> int:
+        """The boot clock at simulation time ``time_s``: the simulation's, a whole number of
+        seconds apart after :meth:`reset_episode` with ``start_s`` (the same integer otherwise)."""
+        return int(round(time_s * 1000.0)) + self.clock_offset_ms
 
     @property
     def time_usec(self) -> int:

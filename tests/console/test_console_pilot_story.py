@@ -139,7 +139,8 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
                 _wait(a, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 10)
                 shot(a, tmp_path, "console_discarded.png")
             except Exception:  # where the page and every thread of the console were, for the report
-                print("page status", a.evaluate("JSON.stringify(window.colConsole.status)") if "a" in locals() else None)
+                for page in context.pages:
+                    print("page status", page.evaluate("JSON.stringify(window.colConsole && window.colConsole.status)"))
                 proc.send_signal(signal.SIGUSR1)
                 time.sleep(1.0)
                 raise
