@@ -78,7 +78,9 @@ def _two_tabs_and_a_broken_pad(context, url: str, tmp_path: Path):  # type: igno
     _wait(b, "window.colConsole.errors.some((e) => e.text.includes('only the pilot'))", 10)
     _wait(b, "window.colConsole.role.role === 'watch' && document.getElementById('stop').disabled", 10)  # told again
     assert a.evaluate("window.colConsole.role.role") == "pilot"
-    assert a.evaluate("window.colConsole.status.run.state") == "running"
+    # the status is broadcast four times a second after a ground-truth request to the SITL: read
+    # at one instant it was once still `starting` after the first recorded steps (docs/console.md)
+    _wait(a, "window.colConsole.status.run.state === 'running'", 10)
 
     a.evaluate("window.__pad.axes[0] = NaN; window.__pad.axes[1] = 1e308; window.__pad.axes[2] = -Infinity;"
                "window.__pad.axes[3] = 5")
