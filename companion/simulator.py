@@ -31,27 +31,52 @@ class SimulatorClient:
         """``token``: the SITL's control token, when it listens beyond loopback (docs/reliability.md)."""
         self._auth = {"token": token} if token else {}
         self.address = f"{host}:{port}"
-        try:
-            self._sock = socket.create_connection((host, port), timeout=timeout_s)
-        except OSError as exc:
-            raise SimulatorError(f"cannot reach the simulator control surface at {host}:{port}: {exc}; is the SITL running?") from exc
-        self._file = self._sock.makefile("rb")
+        self._host, self._port, self._timeout_s = host, port, timeout_s
         self._lock = threading.Lock()
+        self._sock: socket.socket | None = None
+        self._file: Any = None
+        self._connect()
+
+    def _connect(self) -> None:
+        try:
+            self._sock = socket.create_connection((self._host, self._port), timeout=self._timeout_s)
+        except OSError as exc:
+            raise SimulatorError(f"cannot reach the simulator control surface at {self.address}: {exc}; "
+                                 "is the SITL running?") from exc
+        self._file = self._sock.makefile("rb")
 
     def request(self, cmd: str, **args: Any) -> dict[str, Any]:
-        """Send one request and return its reply; a refusal raises SimulatorError."""
+        """Send one request and return its reply; a refusal raises SimulatorError.
+
+        A request that fails midway (a timeout: a frozen or starved SITL) leaves its reply on the
+        way; the next request would read it as its own. So the connection is dropped and the
+        next request opens a new one."""
         with self._lock:
             try:
+                if self._sock is None:
+                    self._connect()
+                assert self._sock is not None
                 self._sock.sendall((json.dumps({"cmd": cmd, **args, **self._auth}) + "\n").encode())
                 line = self._file.readline()
             except OSError as exc:
+                self._drop()
                 raise SimulatorError(f"simulator control surface failed during {cmd!r}: {exc}") from exc
-        if not line:
-            raise SimulatorError(f"simulator closed the control connection during {cmd!r}")
+            if not line:
+                self._drop()
+                raise SimulatorError(f"simulator closed the control connection during {cmd!r}")
         reply = json.loads(line)
         if not reply.get("ok"):
             raise SimulatorError(f"simulator refused {cmd!r}: {reply.get('error')}")
         return reply
+
+    def _drop(self) -> None:
+        sock, file, self._sock, self._file = self._sock, self._file, None, None
+        for closable in (file, sock):
+            try:
+                if closable is not None:
+                    closable.close()
+            except OSError:
+                pass
 
     def info(self) -> dict[str, Any]:
         return self.request("info")
@@ -63,11 +88,8 @@ class SimulatorClient:
         return self.request("truth")
 
     def close(self) -> None:
-        try:
-            self._file.close()
-            self._sock.close()
-        except OSError:
-            pass
+        """Without the lock: closing ends a request that waits on a silent SITL."""
+        self._drop()
 
 
 @dataclass

@@ -76,9 +76,14 @@ class Arbiter:
         self._durations: list[int] = []
         self._intervening = False
 
-    def decide(self, phase: Phase, human: HumanCommand, policy_cmd: JoystickCommand) -> Decision:
-        """The person in demonstrations, and in interventions while holding the override."""
+    def decide(self, phase: Phase, human: HumanCommand, policy_cmd: JoystickCommand,
+               recordable: bool = True) -> Decision:
+        """The person in demonstrations, and in interventions while holding the override.
+        ``recordable=False``: the step's observation is not the vehicle's true state (its camera
+        frame is missing, companion/control/gaps.py): the same command flies, nothing is recorded."""
         decision = self._choose(phase, human, policy_cmd)
+        if decision.record and not recordable:
+            decision = Decision(decision.command, decision.source, False, None)
         self._count(phase, human, decision)
         return decision
 

@@ -3,7 +3,9 @@
 One control step: read the frame (lockstep: wait for the SITL's frame marker; real time: a
 ticker at ``control_rate_hz``), build the observation, ask the person and the policy, let the
 arbiter choose, map to a body-velocity setpoint, send it (echoing the frame in lockstep), record
-the person's sample, then give the learner its turn. Episodes start through the simulator's
+the person's sample, then give the learner its turn. A step whose telemetry is no newer than the
+last step's (companion/control/freshness.py) holds instead and records nothing, and a step whose
+camera frame is missing flies but is not recorded (companion/control/gaps.py). Episodes start through the simulator's
 control surface when there is one, else by flying to the start point; they end on touchdown or
 after ``max_steps``.
 """
@@ -26,6 +28,8 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
+from companion.control.freshness import FreshnessGate
+from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapCounter
 from companion.control.precland import PrecisionLander
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
@@ -101,6 +105,10 @@ class EpisodeControl(Protocol):
     episode now with that outcome."""
 
     def on_step(self, view: StepView) -> None: ...
+
+    def on_gap(self, gap: Gap | None) -> None:
+        """The steps stopped being recordable for a vehicle-side reason (``gap``), or are whole
+        again (None); called when that changes (companion/control/gaps.py)."""
 
     def end_requested(self) -> str | None: ...
 
@@ -226,6 +234,9 @@ class EpisodeRunner:
         self._warned_home = False
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
+        self._fresh = FreshnessGate()
+        self.gaps = GapCounter()
+        """The current episode's steps that were not true samples, by kind (control/gaps.py)."""
         if parts.asker is not None:
             parts.asker.on_event = self._on_ask_event
 
@@ -298,6 +309,7 @@ class EpisodeRunner:
 
     def _recover_link(self) -> VehicleSnapshot | None:
         """Link lost: stop streaming, warn, wait for it to come back; None if it does not."""
+        self._note_gap(LINK_LOST)
         log.warning("link lost: not streaming setpoints; the vehicle's failsafe holds. Waiting %.0f s",
                     self.p.cfg.link_patience_s)
         deadline = time.monotonic() + self.p.cfg.link_patience_s
@@ -465,6 +477,7 @@ class EpisodeRunner:
     def run(self, episode: int, phase: Phase, seed: int | None) -> EpisodeRecord:
         """Fly one episode; never raises for what happens in flight (it is in the record)."""
         wall0 = time.monotonic()
+        self._begin_gaps()
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
@@ -497,6 +510,7 @@ class EpisodeRunner:
             self._ask_summary = self.p.asker.end_episode(steps)
             if self._ask_summary.unanswered:
                 notes.append("a request for help went unanswered: landed where it was")
+        notes.extend(self.gaps.notes())
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
     def _leave_safe_after_error(self) -> None:
@@ -595,7 +609,11 @@ class EpisodeRunner:
                 outcome = stop
                 break
             steps = step + 1
-            outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
+            if self._fresh.admit(snap):
+                outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
+            else:
+                self._hold_on_stale(step)
+                outcome_now = None
             if outcome_now is not None:
                 outcome = outcome_now
                 break
@@ -603,6 +621,30 @@ class EpisodeRunner:
                 self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
             snap = self._next_snapshot()
         return outcome, version, steps, snap
+
+    def _hold_on_stale(self, step: int) -> None:
+        """No newer telemetry since the last step: the zero-velocity hold (through the limiter,
+        as a refused input's neutral sticks), nobody asked, nothing recorded."""
+        self._note_gap(STALE_TELEMETRY)
+        self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(JoystickCommand.neutral()), self.period_s))
+        self.trace.append((step, math.nan, "hold"))
+
+    # ----- gaps: steps that are not true samples -----------------------------------------------
+    def _begin_gaps(self) -> None:
+        """A new episode: its own counts, its first step needs only complete telemetry, and a
+        gap left over from the last episode is over."""
+        self._fresh.reset()
+        self.gaps.reset()
+        if self.gaps.step(None, count=False) and self.p.control is not None:
+            self.p.control.on_gap(None)
+
+    def _note_gap(self, gap: Gap | None) -> None:
+        """Count this step's gap (None: a whole step) and tell the operator when it changes."""
+        if self.gaps.step(gap):
+            if gap is not None:
+                log.warning("%s", gap.text)
+            if self.p.control is not None:
+                self.p.control.on_gap(gap)
 
     def _stop_reason(self, step: int, snap: VehicleSnapshot) -> str | None:
         """Why the episode ends before this step: a touchdown, or an end asked for from outside."""
@@ -708,10 +750,11 @@ class EpisodeRunner:
             except ColError as exc:
                 log.error("could not switch to hold: %s", exc)
             return "fence", None
+        self._note_gap(VIDEO_MISSING if obs.frame_missing else None)
         human = self._read_human(phase, obs)
         policy_cmd, version, score = self._policy_command(vector)
         action = self._ask(phase, step, score, human)
-        decision = self.arbiter.decide(phase, human, policy_cmd)
+        decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing)
         sp = HOLD  # what a watcher is shown while the vehicle holds or lands on a request
         if action in (AskAction.HOLD, AskAction.LAND):
             self._send_ask_action(action, snap)

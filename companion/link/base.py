@@ -31,7 +31,7 @@ class VehicleSnapshot:
     """Everything known about the vehicle at one instant; replaced whole on every update."""
 
     received_s: float  # monotonic time of the newest message folded in
-    time_boot_ms: int  # the vehicle's clock, from its newest timestamped message
+    time_boot_ms: int  # the vehicle's clock, from its newest timestamped message (of any kind)
     frame_time_boot_ms: int | None  # newest frame marker (SYSTEM_TIME in lockstep), if any
     system_id: int
     autopilot: str  # "PX4", "ARDUPILOTMEGA", ...
@@ -58,6 +58,12 @@ class VehicleSnapshot:
     HIL_STATE_QUATERNION; ArduPilot: SIMSTATE); never on a real vehicle."""
     origin_lat_lon_deg: tuple[float, float] | None = None
     """Where the local frame's origin is (GPS_GLOBAL_ORIGIN), to put the pad on the true map."""
+    position_time_boot_ms: int | None = None
+    """The vehicle's own stamp of the position and velocity held here (LOCAL_POSITION_NED's
+    time_boot_ms; None until one arrives): what says whether a control step's observation is
+    newer than the last one's (companion/control/freshness.py), not its arrival."""
+    attitude_time_boot_ms: int | None = None
+    """The vehicle's own stamp of the attitude and rates held here (ATTITUDE's time_boot_ms)."""
 
     @property
     def in_air(self) -> bool:

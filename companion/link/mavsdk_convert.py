@@ -6,15 +6,22 @@ event loop) so that they read and test without a vehicle.
 
 from __future__ import annotations
 
+import json
 import logging
-import math
 import time
 from dataclasses import replace
+from types import SimpleNamespace
 from typing import Any
 
 from companion.errors import CommandRejected, LinkLost, LinkTimeout
 from companion.link.base import VehicleSnapshot
 from companion.link.connection import parse_connection
+from companion.link.telemetry import HANDLERS, with_changes
+
+DIRECT_TELEMETRY = ("LOCAL_POSITION_NED", "ATTITUDE")
+"""What the MAVSDK link reads as raw MAVLink (MavlinkDirect) instead of through MAVSDK's
+telemetry plugin, whose position has no stamp and whose attitude stamp is not the message's."""
+AUTOPILOT_COMPONENT = 1  # MAV_COMP_ID_AUTOPILOT1
 
 mavsdk_log = logging.getLogger("mavsdk")
 
@@ -69,12 +76,6 @@ def translate_result(what: str, result: str) -> Exception:
     )
 
 
-def finite3(a: float, b: float, c: float) -> tuple[float, float, float]:
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
-        raise ValueError("non-finite telemetry")
-    return (float(a), float(b), float(c))
-
-
 def initial_snapshot(system_id: int, autopilot: str, now_s: float) -> VehicleSnapshot:
     zero = (0.0, 0.0, 0.0)
     return VehicleSnapshot(
@@ -85,15 +86,25 @@ def initial_snapshot(system_id: int, autopilot: str, now_s: float) -> VehicleSna
     )  # fmt: skip
 
 
-def fold_position_velocity(s: VehicleSnapshot, pv: Any) -> VehicleSnapshot:
-    p, v = pv.position, pv.velocity
-    return replace(s, position_ned_m=finite3(p.north_m, p.east_m, p.down_m),
-                   velocity_ned_m_s=finite3(v.north_m_s, v.east_m_s, v.down_m_s),
-                   position_valid=True)  # fmt: skip
-
-
-def fold_rates(s: VehicleSnapshot, w: Any) -> VehicleSnapshot:
-    return replace(s, rates_frd_rad_s=finite3(w.roll_rad_s, w.pitch_rad_s, w.yaw_rad_s))
+def fold_direct_telemetry(s: VehicleSnapshot, message: Any) -> VehicleSnapshot:
+    """LOCAL_POSITION_NED or ATTITUDE as MavlinkDirect hands it over (its fields as JSON),
+    folded by the pymavlink link's own rules (companion/link/telemetry.py): both links carry
+    the vehicle's own stamp of each message, and values never mix with another message's
+    stamp. ATTITUDE marks a frame (``wait_frame``). ValueError for a malformed or non-finite
+    message, or one from another component than the autopilot."""
+    if int(message.component_id) != AUTOPILOT_COMPONENT:
+        raise ValueError(f"{message.message_name} from component {message.component_id}, not the autopilot")
+    fields = json.loads(message.fields_json)
+    kind = fields.get("message_name") if isinstance(fields, dict) else None
+    if kind not in DIRECT_TELEMETRY:
+        raise ValueError(f"not a telemetry message the link folds: {kind!r}")
+    try:
+        changes = HANDLERS[kind](SimpleNamespace(**fields), 0.0)
+    except (AttributeError, TypeError) as exc:
+        raise ValueError(f"{kind} without its fields: {exc}") from None
+    if kind == "ATTITUDE":
+        changes["frame_time_boot_ms"] = changes["time_boot_ms"]
+    return with_changes(s, changes)
 
 
 def fold_flight_mode(s: VehicleSnapshot, mode: Any) -> VehicleSnapshot:

@@ -2,7 +2,9 @@
 
 Real time only: MAVSDK stamps and re-sends setpoints itself (20 Hz), so a setpoint cannot echo
 a lockstep frame marker; against a lockstep SITL each frame would wait out the SITL's timeout.
-``wait_frame`` returns the next ATTITUDE update. No tlog either (MAVSDK only exposes the bytes
+``wait_frame`` returns the next ATTITUDE update. Position and attitude are read as raw MAVLink
+(MavlinkDirect) and folded by the pymavlink link's rules, so each carries the vehicle's own stamp
+(MAVSDK's telemetry plugin gives a position without one). No tlog either (MAVSDK only exposes the bytes
 it sends); use the pymavlink link when a recording is needed. MAVSDK runs on its own event-loop
 thread; its log goes to the ``mavsdk`` logger instead of stdout.
 """
@@ -36,11 +38,10 @@ from companion.link.manual_control import manual_control_from_fields
 from companion.link.mavlink_link import message_id
 from companion.link.mavlink_link import result_name as mav_result_name
 from companion.link.mavsdk_convert import (
-    finite3,
+    DIRECT_TELEMETRY,
+    fold_direct_telemetry,
     fold_flight_mode,
     fold_landed_state,
-    fold_position_velocity,
-    fold_rates,
     initial_snapshot,
     mavsdk_url,
     route_mavsdk_log,
@@ -79,7 +80,6 @@ class MavsdkLink(VehicleLink):
         self._changed = threading.Condition()
         self._last_heard_s: float | None = None
         self._was_alive = False
-        self._t0 = time.monotonic()
         self._counts: Counter[str] = Counter()
         self._manual_cb: ManualControlCallback | None = None
         self._offboard_ready = False
@@ -149,11 +149,12 @@ class MavsdkLink(VehicleLink):
 
     # ================================================================ telemetry
     def _start_streams(self) -> None:
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+
         tel = self._plugins["telemetry"]
+        direct = self._plugins["direct_telemetry"] = MavlinkDirectAsync(self._system)
         streams: list[tuple[Any, Callable[[VehicleSnapshot, Any], VehicleSnapshot]]] = [
-            (tel.subscribe_position_velocity_ned(), fold_position_velocity),
-            (tel.subscribe_attitude_euler(), self._attitude),
-            (tel.subscribe_attitude_angular_velocity_body(), fold_rates),
+            *((direct.subscribe_message(name), fold_direct_telemetry) for name in DIRECT_TELEMETRY),
             (tel.subscribe_armed(), lambda s, v: replace(s, armed=bool(v))),
             (tel.subscribe_flight_mode(), fold_flight_mode),
             (tel.subscribe_landed_state(), fold_landed_state),
@@ -178,15 +179,6 @@ class MavsdkLink(VehicleLink):
                 continue
             self._counts["messages_received"] += 1
             self._publish(replace(new, received_s=now))
-
-    def _attitude(self, s: VehicleSnapshot, euler: Any) -> VehicleSnapshot:
-        attitude = finite3(math.radians(euler.roll_deg), math.radians(euler.pitch_deg),
-                            math.radians(euler.yaw_deg))  # fmt: skip
-        stamp_ms = int(euler.timestamp_us // 1000) or int((time.monotonic() - self._t0) * 1000)
-        if s.frame_time_boot_ms is not None and stamp_ms <= s.frame_time_boot_ms:
-            stamp_ms = s.frame_time_boot_ms + 1  # keep frames strictly increasing
-        return replace(s, attitude_rad=attitude, attitude_valid=True, time_boot_ms=stamp_ms,
-                       frame_time_boot_ms=stamp_ms)  # fmt: skip
 
     async def _follow_manual_control(self) -> None:
         """MANUAL_CONTROL from any system MAVSDK knows of (a ground station is its own system)."""

@@ -83,12 +83,14 @@ def _heartbeat(msg: Any, now_s: float) -> dict[str, Any]:
 
 
 def _local_position(msg: Any, now_s: float) -> dict[str, Any]:
-    return {"time_boot_ms": int(msg.time_boot_ms), "position_ned_m": _finite(msg.x, msg.y, msg.z),
+    stamp = int(msg.time_boot_ms)
+    return {"time_boot_ms": stamp, "position_time_boot_ms": stamp, "position_ned_m": _finite(msg.x, msg.y, msg.z),
             "velocity_ned_m_s": _finite(msg.vx, msg.vy, msg.vz), "position_valid": True}
 
 
 def _attitude(msg: Any, now_s: float) -> dict[str, Any]:
-    return {"time_boot_ms": int(msg.time_boot_ms), "attitude_rad": _finite(msg.roll, msg.pitch, msg.yaw),
+    stamp = int(msg.time_boot_ms)
+    return {"time_boot_ms": stamp, "attitude_time_boot_ms": stamp, "attitude_rad": _finite(msg.roll, msg.pitch, msg.yaw),
             "rates_frd_rad_s": _finite(msg.rollspeed, msg.pitchspeed, msg.yawspeed), "attitude_valid": True}
 
 

@@ -71,6 +71,9 @@ class FlightRecorder:
     def end_requested(self) -> str | None:
         return None
 
+    def on_gap(self, gap: Any) -> None:
+        """Gaps are in the episode's record; the pictures show the steps as flown."""
+
     def on_step(self, view: StepView) -> None:
         obs, who = view.observation, who_flew(view)
         n, e, d = obs.position_ned_m

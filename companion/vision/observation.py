@@ -79,6 +79,9 @@ class Observation:
     pad: PadDetection | None
     image_size_px: tuple[int, int]  # (width, height)
     time_boot_ms: int
+    frame_missing: bool = False
+    """The configured camera gave no usable frame for this step: ``pad`` None then means
+    "unknown", not "not visible", and the step is not a true sample (it is not recorded)."""
 
     def __post_init__(self) -> None:
         for name in ("position_ned_m", "attitude_rad", "velocity_ned_m_s", "rates_frd_rad_s"):

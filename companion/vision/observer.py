@@ -1,7 +1,8 @@
 """One frame of telemetry and one camera image become one observation.
 
-The camera may be missing or dead during flight: then the pad is "not visible" and a warning
-is logged (rate-limited), never a crash. In lockstep the image of frame T is asked for by its
+The camera may be missing or dead during flight: then the pad is "not visible" to the policy and
+a warning is logged (rate-limited), never a crash; the observation says its frame was missing,
+so the step is not recorded as a sample (the pad's state is unknown, not "not visible"). In lockstep the image of frame T is asked for by its
 stamp, so the agent decides step T on what the camera saw at T.
 """
 
@@ -95,7 +96,9 @@ class Observer:
         ``position_ned_m``: the position relative to home (default: the snapshot's, as sent)."""
         stamp = snapshot.frame_time_boot_ms if lockstep else None
         self._last_frame_ms = self.last_frame_number = None
+        missing_before = self.frames_missing + self.detect_errors
         pad = self.detect(stamp)
+        frame_missing = self.camera is not None and self.frames_missing + self.detect_errors > missing_before
         if self._last_frame_ms is not None and getattr(self.camera, "vehicle_time_stamps", False):
             self.frame_ages_ms.append(int(snapshot.time_boot_ms) - self._last_frame_ms)
         return Observation(
@@ -106,4 +109,5 @@ class Observer:
             pad=pad,
             image_size_px=self.image_size_px,
             time_boot_ms=max(0, int(snapshot.frame_time_boot_ms if lockstep and snapshot.frame_time_boot_ms is not None else snapshot.time_boot_ms)),
+            frame_missing=frame_missing,
         )

@@ -46,7 +46,8 @@ class KinematicLink(VehicleLink):
     def _snap(self) -> VehicleSnapshot:
         landed = "ON_GROUND" if self.pos[2] >= 0 else "IN_AIR"
         return VehicleSnapshot(0.0, self.t_ms, self.t_ms, 1, "PX4", self.armed, self.mode, landed,
-                               tuple(self.pos), tuple(self.vel), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, True, True)
+                               tuple(self.pos), tuple(self.vel), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, True, True,
+                               position_time_boot_ms=self.t_ms, attitude_time_boot_ms=self.t_ms)
 
     def wait_frame(self, after_time_boot_ms: int, timeout_s: float) -> VehicleSnapshot | None:
         self.frame += 1
@@ -374,3 +375,92 @@ def test_the_hold_stream_goes_on_while_offboard_is_asked_for_in_real_time_only(l
     else:
         assert sent_while_waiting[0] >= 3  # zero-velocity holds, before the episode's first command
         assert all(sp.forward_m_s == sp.right_m_s == sp.down_m_s == 0.0 for sp, _ in link.sent[:1 + sent_while_waiting[0]])
+
+
+class GapWatcher:
+    """An operator's view: the gaps as the session reports them, and the steps it saw."""
+
+    def __init__(self) -> None:
+        self.gaps: list[str | None] = []
+        self.steps: list[int] = []
+
+    def on_step(self, view) -> None:  # type: ignore[no-untyped-def]
+        self.steps.append(view.step)
+
+    def on_gap(self, gap) -> None:  # type: ignore[no-untyped-def]
+        self.gaps.append(None if gap is None else gap.kind)
+
+    def end_requested(self) -> None:
+        return None
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_steps_on_stale_telemetry_hold_and_record_nothing(lockstep: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A frozen vehicle: frames (or ticks) come, but its position and attitude stamps stand still."""
+    link = KinematicLink((0.0, 0.0, -5.0))
+    frozen = set(range(8, 13))  # the link's frame numbers whose telemetry is the last one's
+    original = link.wait_frame
+    last: list[VehicleSnapshot] = []
+
+    def freezing_wait_frame(after: int, timeout_s: float):  # type: ignore[no-untyped-def]
+        snap = original(after, timeout_s)
+        if link.frame in frozen and last:  # the marker moves on, the telemetry does not
+            link.pos = np.array(last[-1].position_ned_m)
+            return replace(last[-1], frame_time_boot_ms=snap.frame_time_boot_ms, time_boot_ms=snap.time_boot_ms)
+        last.append(snap)
+        return snap
+
+    link.wait_frame = freezing_wait_frame  # type: ignore[method-assign]
+    if not lockstep:  # real time: the ticker reads state(); the same freeze through it
+        monkeypatch.setattr("companion.control.session.Ticker.wait", lambda self: None)
+        link.state = lambda: freezing_wait_frame(0, 0.0)  # type: ignore[method-assign]
+    runner, dataset = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=20, lockstep=lockstep)
+    watcher = GapWatcher()
+    runner.p.control = watcher  # type: ignore[assignment]
+    recorded: list[int] = []
+    append = dataset.append
+    dataset.append = lambda sample: (recorded.append(sample.step), append(sample))[1]  # type: ignore[method-assign]
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    stale = [step for step, _, who in runner.trace if who == "hold"]
+    assert len(stale) == len(frozen), runner.trace
+    assert record.steps == 20 and record.human_samples == len(dataset) == len(recorded) == 20 - len(frozen)
+    assert not set(recorded) & set(stale)
+    assert f"{len(frozen)} steps held on stale telemetry, not recorded" in record.notes
+    assert watcher.gaps == ["telemetry", None]  # told when the gap started and when it ended
+    assert not set(watcher.steps) & set(stale)  # no step is shown as flown on old telemetry
+    # every stale step sent the zero-velocity hold
+    by_step = dict(zip(range(len(link.sent) - record.steps, len(link.sent)), range(record.steps)))
+    holds = [link.sent[i][0] for i, step in by_step.items() if step in stale]
+    assert holds and all(sp == VelocitySetpoint(0.0, 0.0, 0.0, 0.0) for sp in holds)
+
+
+def test_a_step_without_its_camera_frame_flies_but_is_not_recorded() -> None:
+    from sitl.frames import Frame
+
+    class GappyCamera:
+        """A camera whose frames 4-6 never come (a stalled stream)."""
+
+        vehicle_time_stamps = True
+
+        def __init__(self) -> None:
+            self.asked = 0
+
+        def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None:
+            self.asked += 1
+            if 4 <= self.asked <= 6:
+                return None
+            return Frame(self.asked, time_boot_ms, np.zeros((240, 320, 3), np.uint8))
+
+        def latest(self) -> Frame | None:
+            return None
+
+    link = KinematicLink((0.0, 0.0, -5.0))
+    runner, dataset = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    runner.p.observer = Observer(GappyCamera(), PadDetector(), (320, 240))  # type: ignore[arg-type]
+    watcher = GapWatcher()
+    runner.p.control = watcher  # type: ignore[assignment]
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert record.steps == 12 and record.human_samples == len(dataset) == 9
+    assert "3 steps flown without a camera frame, not recorded" in record.notes
+    assert watcher.gaps == ["video", None]
+    assert len(watcher.steps) == 12  # they flew (and were shown), unrecorded

@@ -705,7 +705,9 @@ def test_auto_camera_on_an_external_sitl_is_found_through_mavlink(realtime_sitl,
     assert result.records[0].steps == 3
     with (tmp_path / "run" / "human.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == 3 and all(float(r["pad_radius"]) > 0 for r in rows)  # the camera saw the pad
+    # a step on stale telemetry (a starved real-time SITL) is held, not recorded: every row is a true one
+    assert 1 <= len(rows) == result.records[0].human_samples
+    assert all(float(r["pad_radius"]) > 0 for r in rows)  # the camera saw the pad
 
 
 @pytest.mark.e2e
