@@ -277,6 +277,10 @@ class LandingConfig(Section):
         3.0, gt=0, le=30, description="a vehicle that reports no landed state: standing this long with the assist on is a touchdown")
 
 
+MIN_TELEMETRY_PER_STEP = 2.0
+"""ATTITUDE and LOCAL_POSITION_NED are asked for at least this many times per control step."""
+
+
 class CompanionConfig(Section):
     link: LinkConfig = LinkConfig()
     commands: CommandsConfig = CommandsConfig()
@@ -293,6 +297,17 @@ class CompanionConfig(Section):
         if self.ask.enabled and self.learner.ensemble_members < 2:
             raise ValueError("[companion.ask] enabled needs an ensemble to measure disagreement: "
                              "set [companion.learner] ensemble_members to 2 or more (5 is usual)")
+        return self
+
+    @model_validator(mode="after")
+    def _telemetry_outpaces_control(self) -> CompanionConfig:
+        """A step needs telemetry newer than the last step's (companion/control/freshness.py): at
+        less than twice the control rate, steps would hold on stale telemetry by design."""
+        rate, control = self.link.telemetry_rate_hz, self.session.control_rate_hz
+        if 0 < rate < MIN_TELEMETRY_PER_STEP * control:
+            raise ValueError(f"[companion.link] telemetry_rate_hz = {rate:g} is below {MIN_TELEMETRY_PER_STEP:g} x the "
+                             f"control rate ({control:g} Hz): steps would hold on stale telemetry; ask for at least "
+                             f"{MIN_TELEMETRY_PER_STEP * control:g} Hz (50 is usual), or 0 to leave the vehicle's rates")
         return self
 
 

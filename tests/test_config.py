@@ -66,3 +66,13 @@ def test_sitl_command_line_overrides_are_validated() -> None:
     assert cfg.clock.mode == "lockstep" and cfg.network.tcp_port is None and not cfg.camera.enabled
     with pytest.raises(ConfigError, match="clock.mode"):
         build_config(SitlConfig(), clock="sometimes")
+
+
+def test_telemetry_slower_than_twice_the_control_rate_is_refused(tmp_path) -> None:
+    """Steps need telemetry newer than the last step's: a slower stream would hold by design."""
+    path = tmp_path / "slow.toml"
+    path.write_text("[companion.link]\ntelemetry_rate_hz = 15.0\n")
+    with pytest.raises(ConfigError, match="telemetry_rate_hz = 15 is below 2 x the control rate"):
+        load_companion_config(path)
+    path.write_text("[companion.link]\ntelemetry_rate_hz = 0.0\n")  # the vehicle's own rates: allowed
+    assert load_companion_config(path).link.telemetry_rate_hz == 0.0
