@@ -7,8 +7,9 @@ The console flies a vehicle, so two doors are shut:
   must carry (``?token=...``, compared in constant time).
 - **Cross-site WebSocket hijacking.** Any web page the person has open could open a socket to
   ``ws://127.0.0.1:PORT/ws`` and fly the vehicle. Browsers send an ``Origin`` header with every
-  WebSocket handshake, so the socket accepts only its own origin (the scheme, host and port the
-  page was served from) and refuses every other one.
+  WebSocket handshake, so the socket accepts only its own origin (exactly ``http://`` and the
+  host and port the page was served from; an ``Origin`` header sent twice is refused) and
+  refuses every other one.
 - **DNS rebinding.** A name the attacker controls can resolve to 127.0.0.1; its page is then
   "same origin" with the console (Origin and Host both say ``attacker.example:PORT``). So every
   request's ``Host`` must be a name the console answers to: the loopback names, and with
@@ -20,7 +21,7 @@ from __future__ import annotations
 import hmac
 import ipaddress
 import socket
-from urllib.parse import urlsplit
+from collections.abc import Sequence
 
 from colcommon.network import is_loopback
 from companion.errors import ConfigError
@@ -48,18 +49,21 @@ def token_ok(given: str | None, token: str | None) -> bool:
     return given is not None and hmac.compare_digest(given.encode(), token.encode())
 
 
-def origin_ok(origin: str | None, host_header: str | None) -> bool:
+def origin_ok(origin: str | Sequence[str] | None, host_header: str | None) -> bool:
     """Is a WebSocket handshake from the console's own page?
 
-    A browser always sends ``Origin``; it must name the host and port the request was sent to
-    (``Host``). A client that is not a browser sends none and is let through: it could forge
-    the header anyway, and what keeps it out is the loopback binding or the token."""
-    if origin is None:
+    ``origin``: the request's ``Origin`` header, or every value of it (a header sent twice is
+    refused, whatever its first value). A browser always sends one ``Origin``; it must be exactly
+    the console's own: ``http`` (the console serves plain HTTP, so ``https://`` is another
+    origin), and the host and port the request was sent to (``Host``), nothing more. A client
+    that is not a browser sends none and is let through: it could forge the header anyway, and
+    what keeps it out is the loopback binding or the token."""
+    values = [] if origin is None else [origin] if isinstance(origin, str) else list(origin)
+    if not values:
         return True
-    if host_header is None:
+    if len(values) != 1 or not host_header:
         return False
-    parts = urlsplit(origin)
-    return parts.scheme in ("http", "https") and parts.netloc.lower() == host_header.lower()
+    return values[0].lower() == f"http://{host_header.lower()}"
 
 
 LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})

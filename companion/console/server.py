@@ -13,7 +13,9 @@ only when the pilot gives it up or its socket closes (its input falls silent at 
 the same tab reconnects within :data:`~companion.console.roles.GRACE_S`, unless another page took
 it meanwhile (:class:`~companion.console.roles.PilotSeat`). Other pages watch: their input and
 commands are refused with an error, never dropped silently. Every message the console does not act on is
-logged with its reason (:mod:`companion.console.messages`); none can close the socket.
+logged with its reason (:mod:`companion.console.messages`) and counted to the page (the error
+carries the count: at once for the first of a run, then at most every
+:data:`~companion.console.messages.REFUSAL_SEND_INTERVAL_S`, never silent); none can close the socket.
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ class _Client:
     frame: bytes | None = None
     frame_queued: bool = False
     refusals: RefusalLog | None = None
+    refusals_due: bool = False  # a call to send the refusals not yet told is scheduled
 
     def offer_json(self, text: str) -> bool:
         if self.queue.qsize() >= MAX_QUEUED:
@@ -98,6 +101,7 @@ class ConsoleServer:
         self.pilot: _Client | None = None
         self.seat = seat if seat is not None else PilotSeat()
         self._pages = itertools.count(1)
+        self._truth: dict[str, Any] | None = None  # the SITL's newest ground truth, for the map
         self.session: ConsoleSession = make_session(self.publish, self.publish_frame)
         self.app = web.Application(middlewares=[self._guard])
         self.app.router.add_get("/", self._index)
@@ -109,6 +113,9 @@ class ConsoleServer:
     # ----- thread-safe outlets for the session --------------------------------------------------
     def publish(self, message: dict[str, Any]) -> None:
         if self.loop is not None and not self.loop.is_closed():
+            if message.get("type") == "status":  # the session's own status (a run's state changed)
+                pilot = self.pilot
+                message = {**message, "pilot_page": pilot.page if pilot is not None else None}
             text = json.dumps(message)
             with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
                 self.loop.call_soon_threadsafe(self._broadcast, text)
@@ -140,14 +147,26 @@ class ConsoleServer:
         await asyncio.to_thread(self.session.close)
 
     async def _status_loop(self) -> None:
+        """The status four times a second, never held up by the SITL: its ground truth (a request
+        to the SITL, which a frozen or starved SITL answers late or never) is fetched beside the
+        loop, and each status carries the newest truth known by then (None: none yet this run)."""
+        fetching: asyncio.Task[None] | None = None
         while True:
             await asyncio.sleep(STATUS_PERIOD_S)
             if not self.clients:
                 continue
+            running = self.session.running
+            if not running:
+                self._truth = None
+            elif fetching is None or fetching.done():
+                fetching = asyncio.create_task(self._fetch_truth())
             status = self.session.status()
-            status["truth"] = await asyncio.to_thread(self.session.truth) if self.session.running else None
+            status["truth"] = self._truth if running else None
             status["pilot_page"] = self.pilot.page if self.pilot is not None else None
             self._broadcast(json.dumps(status))
+
+    async def _fetch_truth(self) -> None:
+        self._truth = await asyncio.to_thread(self.session.truth)
 
     # ----- HTTP -------------------------------------------------------------------------------------
     @web.middleware
@@ -161,8 +180,9 @@ class ConsoleServer:
                                          f"({', '.join(sorted(self.hosts))}); see --allow-host")
         if not request.path.startswith("/static/") and not token_ok(request.query.get("token"), self.token):
             raise web.HTTPForbidden(text="this console needs its token: open it as /?token=...")
-        if request.path == "/ws" and not origin_ok(request.headers.get("Origin"), request.headers.get("Host")):
-            log.warning("refused a WebSocket from another site's page (Origin %s)", request.headers.get("Origin"))
+        if request.path == "/ws" and not origin_ok(request.headers.getall("Origin", []), request.headers.get("Host")):
+            log.warning("refused a WebSocket from another site's page (Origin %s)",
+                        ", ".join(request.headers.getall("Origin", [])))
             raise web.HTTPForbidden(text="the console's socket accepts its own page only")
         return await handler(request)
 
@@ -232,7 +252,8 @@ class ConsoleServer:
         """The pilot left: its input is silent at once (the vehicle holds if the person was flying);
         a lost link keeps the role for the same tab for a while, giving it up does not."""
         self.pilot = None
-        self.session.human.disconnected()
+        self.session.human.disconnected(f"the pilot's page {client.page} lost its link to the console"
+                                        if how == "lost its link" else f"the pilot (page {client.page}) gave up the role")
         kept = how == "lost its link" and self.seat.keep_for(client.tab, client.page)
         text = (f"the pilot's page {client.page} {how}: nobody flies from a page; if the person was "
                 "flying, the vehicle holds position")
@@ -263,18 +284,37 @@ class ConsoleServer:
         client.offer_json(json.dumps(self._role_of(client)))
 
     def _refuse(self, client: _Client, reason: str) -> None:
-        assert client.refusals is not None
-        new = client.refusals.last != reason
-        client.refusals.refused(reason)
-        if new:  # a broken pad at 30 messages/s: the page is told once per run of the same reason
-            client.offer_json(json.dumps({"type": "error", "message": reason}))
+        """Every refusal is counted and the page told with the count: the first of a run at once,
+        the rest at most every REFUSAL_SEND_INTERVAL_S (a broken pad sends 30 messages a second),
+        and a count not yet told goes out when that interval ends."""
+        refusals = client.refusals
+        assert refusals is not None
+        if refusals.refused(reason):
+            self._tell_refusal(client, reason, refusals.count(reason))
+        elif not client.refusals_due and self.loop is not None:
+            client.refusals_due = True
+            self.loop.call_later(refusals.interval_s, self._tell_unsent, client)
+
+    def _tell_refusal(self, client: _Client, reason: str, count: int) -> None:
+        client.offer_json(json.dumps({"type": "error", "message": reason, "count": count}))
+
+    def _tell_unsent(self, client: _Client) -> None:
+        client.refusals_due = False
+        if client.refusals is not None and client in self.clients:
+            for reason, count in client.refusals.unsent():
+                self._tell_refusal(client, reason, count)
 
     def _on_text(self, client: _Client, text: str) -> None:
         try:
             message = messages.parse(text)
             kind = message.get("type")
             if kind == "input":
-                checked = messages.check_input(message)
+                try:
+                    checked = messages.check_input(message)
+                except Refused as exc:
+                    if client is self.pilot:  # the hold that follows names it
+                        self.session.human.refused(str(exc))
+                    raise
                 if client is not self.pilot:
                     self._correct_role(client)
                     raise Refused("this page watches: its sticks do not fly (ask for the pilot role)")
@@ -289,6 +329,8 @@ class ConsoleServer:
                 self._take_role(client, messages.role_wanted(message))
             else:
                 raise Refused(f"unknown message type {str(kind)[:40]!r}; use input, command or role")
+            assert client.refusals is not None
+            client.refusals.accepted()
         except (ValueError, ColError) as exc:
             self._refuse(client, str(exc))
         except Exception as exc:  # a bug here must not close the pilot's socket

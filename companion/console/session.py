@@ -30,6 +30,7 @@ from companion.config import CompanionConfig
 from companion.console.frames import FramePump
 from companion.console.study import ConsoleStudy
 from companion.control.arbiter import Phase
+from companion.control.gaps import Gap
 from companion.control.session import EpisodeRecord, StepView
 from companion.errors import ColError, ConfigError
 from companion.experiment.study import Block
@@ -79,6 +80,7 @@ class _RunState:
     stage: str | None = None  # what a starting run is doing (the first step takes seconds)
     started_wall_s: float | None = None
     summary: str | None = None  # the message at the end of the run
+    gap: dict[str, Any] | None = None  # why steps are not recorded now (control/gaps.py), if they are not
 
 
 @dataclass
@@ -285,6 +287,7 @@ class ConsoleSession:
             self._vehicle, self._learner, self._dataset = vehicle, learner, dataset
             self._run.state = "stopping" if self._stop else "running"
             self._run.stage = "connected: the episode's start (reset, take-off) takes a few seconds"
+            self._publish_status_locked()  # the run's state and simulator reach the pages before any step
         if vehicle.camera is not None:
             self._pump = FramePump(vehicle.camera, self._on_frame)
             self._pump.start()
@@ -308,6 +311,7 @@ class ConsoleSession:
             self._run.track_ne = []
             self._next = False
             self._watch = _EpisodeWatch()
+            self._publish_status_locked()  # the episode and phase reach the pages before its first step
         self.human.reset()
         if self._recorder is not None:
             self._recorder.before_episode(episode, phase)
@@ -318,6 +322,8 @@ class ConsoleSession:
         self._notice_step(view)
         message = step_message(view, learner.last_loss if learner is not None else None,
                                len(dataset) if dataset is not None else 0, self.hud, self._watch)
+        if message["who"] == "hold":  # the page's banner names why (refused sticks, the role given up...)
+            message["hold_reason"] = self.human.why_holding()
         if self._recorder is not None:
             self._recorder.on_step(view)
         with self._lock:
@@ -336,6 +342,13 @@ class ConsoleSession:
         pad, height = view.observation.pad, self.hud.pad_down_m - view.observation.position_ned_m[2]
         if pad is not None and not pad.partial and height > 0.05:
             w.pad_k_px_m = pad.radius_px * height
+
+    def on_gap(self, gap: Gap | None) -> None:
+        """The vehicle side stopped the steps being recorded (stale telemetry, a lost vehicle
+        link, a missing camera frame), or they are whole again: the page shows why."""
+        with self._lock:
+            self._run.gap = None if gap is None else {"kind": gap.kind, "text": gap.text, "holding": gap.holding}
+        self.publish({"type": "gap", "gap": self._run.gap})
 
     def end_requested(self) -> str | None:
         with self._lock:
@@ -374,6 +387,7 @@ class ConsoleSession:
             with self._lock:
                 self._run.state, self._run.error = state, error
                 self._run.ready_for = self._run.stage = None
+                self._run.gap = None  # no steps: nothing is missing from them
                 self._run.summary = self._summary_locked(state, error)
                 self._vehicle = None
                 self._publish_status_locked()
@@ -477,9 +491,11 @@ class ConsoleSession:
             "type": "status", "run": {"state": run.state, "condition": run.condition, "episodes": run.episodes,
                                       "error": run.error, "episode": run.episode, "phase": run.phase,
                                       "paused": self._paused, "auto": run.auto, "ready_for": run.ready_for,
-                                      "stage": run.stage, "since_start_s": since, "summary": run.summary},
+                                      "stage": run.stage, "since_start_s": since, "summary": run.summary,
+                                      "gap": run.gap},
             "input": {"connected": inp.connected, "fresh": inp.fresh, "holding": inp.holding,
-                      "hold_reason": inp.hold_reason, "messages": inp.messages, "override": inp.command.override_held},
+                      "hold_reason": inp.hold_reason, "lost_reason": inp.lost_reason, "messages": inp.messages,
+                      "override": inp.command.override_held},
             "learner": {"version": learner.latest_snapshot.version if learner is not None else None,
                         "loss": _finite(learner.last_loss, 6) if learner is not None else None,
                         "samples": len(dataset) if dataset is not None else None},

@@ -8,11 +8,16 @@ As in the paper: left stick throttle/yaw, right stick pitch/roll, right trigger 
 Deadband and expo are applied later by the command mapper, as for every source; what is
 recorded is the stick itself.
 
-Safety: when the page falls silent (its socket closes, or no message for
-``manual_timeout_s``) while the person is flying, :meth:`read` says ``hold``: the vehicle hovers,
-nothing is recorded, and if the override was held the hold stays latched until the person
-takes the sticks again (trigger held) or hands back explicitly (:meth:`hand_back`): the policy
-never takes over silently.
+A state that is not a whole pad (fewer than the 4 axes and 8 buttons the mapping reads) is
+refused (:func:`pad_shape_error`), never read as centred sticks: a pad that reports 2 axes is
+not a person holding the right stick still.
+
+Safety: when the page falls silent (its socket closes, the pilot gives up the role, its input is
+refused, or no message for ``manual_timeout_s``) while the person is flying, :meth:`read` says
+``hold``: the vehicle hovers, nothing is recorded, and if the override was held the hold stays
+latched until the person takes the sticks again (trigger held) or hands back explicitly
+(:meth:`hand_back`): the policy never takes over silently. The status names the reason
+(:meth:`BrowserInput.why_holding`).
 """
 
 from __future__ import annotations
@@ -36,6 +41,10 @@ log = logging.getLogger(__name__)
 
 LEFT_X, LEFT_Y, RIGHT_X, RIGHT_Y = 0, 1, 2, 3  # Gamepad API "standard" mapping
 RIGHT_TRIGGER = 7
+AXES_NEEDED = RIGHT_Y + 1  # what the mapping reads: both sticks ...
+BUTTONS_NEEDED = RIGHT_TRIGGER + 1  # ... and the right trigger
+NO_PAGE = "no pilot page is connected"
+LINK_LOST = "the console's page lost its link"
 
 
 @dataclass(frozen=True)
@@ -45,7 +54,8 @@ class BrowserStatus:
     connected: bool
     fresh: bool
     holding: bool
-    hold_reason: str | None
+    hold_reason: str | None  # why a latched hold holds (until the trigger or a hand-back)
+    lost_reason: str | None  # why the person's input is missing now (None while it is fresh)
     messages: int
     repaired_axes: int
     last_seq: int | None
@@ -60,18 +70,31 @@ def _number(value: Any) -> float:
     return x
 
 
-def _at(values: Sequence[Any], index: int) -> float:
-    return _number(values[index]) if index < len(values) else 0.0
+def pad_shape_error(axes: int, buttons: int) -> str | None:
+    """Why a pad state with this many axes and buttons cannot fly (None: it can). The mapping
+    reads 4 axes and button 7; a shorter state is not centred sticks and a released trigger,
+    it is a pad the console cannot read (another layout, a broken driver, a forged page)."""
+    if axes < AXES_NEEDED:
+        return (f"this gamepad reports {axes} axes; the console needs {AXES_NEEDED} (both sticks, the "
+                "Gamepad API's standard layout of an Xbox pad): its sticks are refused, not read as centred")
+    if buttons < BUTTONS_NEEDED:
+        return (f"this gamepad reports {buttons} buttons; the console needs {BUTTONS_NEEDED} (button "
+                f"{RIGHT_TRIGGER} is the right trigger, the override): its state is refused")
+    return None
 
 
 def command_from_gamepad(axes: Sequence[Any], buttons: Sequence[Any],
                          trigger_threshold: float) -> tuple[HumanCommand, int]:
     """The Gamepad API's standard layout as a HumanCommand, and how many axes were repaired
-    (non-finite -> centred, out of range -> clamped)."""
+    (non-finite -> centred, out of range -> clamped). ValueError for a state with too few axes
+    or buttons (:func:`pad_shape_error`)."""
+    error = pad_shape_error(len(axes), len(buttons))
+    if error is not None:
+        raise ValueError(error)
     # 0.0 - y, not -y: a centred stick is +0.0 (the dataset would say "-0")
-    raw = [_at(axes, RIGHT_X), 0.0 - _at(axes, RIGHT_Y), _at(axes, LEFT_X), 0.0 - _at(axes, LEFT_Y)]
+    raw = [_number(axes[RIGHT_X]), 0.0 - _number(axes[RIGHT_Y]), _number(axes[LEFT_X]), 0.0 - _number(axes[LEFT_Y])]
     cmd, issues = sanitize(raw)
-    trigger = _at(buttons, RIGHT_TRIGGER)
+    trigger = _number(buttons[RIGHT_TRIGGER])
     held = math.isfinite(trigger) and trigger > trigger_threshold
     return HumanCommand(cmd, override_held=held), issues.non_finite + issues.clamped
 
@@ -86,6 +109,8 @@ class BrowserInput(HumanInput):
         self._latest = HumanCommand.neutral()
         self._received_s: float | None = None
         self._connected = False
+        self._gone: str | None = NO_PAGE  # why no page is connected
+        self._refused: str | None = None  # why the page's latest input was refused (until a good one)
         self._latched: str | None = None  # why the vehicle holds until the person acts
         self._messages = 0
         self._repaired = 0
@@ -93,25 +118,36 @@ class BrowserInput(HumanInput):
         self.last_page_ms: float | None = None  # the page's clock in the latest message
 
     def connected(self) -> None:
-        """A page opened its socket."""
+        """A page opened its socket (it is the pilot's)."""
         with self._lock:
-            self._connected = True
+            self._connected, self._gone, self._refused = True, None, None
 
-    def disconnected(self) -> None:
-        """The page's socket closed: from now on :meth:`read` sees silence."""
+    def disconnected(self, why: str = LINK_LOST) -> None:
+        """The pilot's page left (``why``: its link dropped, the pilot gave up the role): from now
+        on :meth:`read` sees silence, and the status says why."""
         with self._lock:
             self._connected = False
             self._received_s = None
+            self._gone, self._refused = why, None
+
+    def refused(self, reason: str) -> None:
+        """The pilot's page sent an input the console refused (not fed): if its last good input
+        ages out, the hold says why."""
+        with self._lock:
+            self._refused = reason
 
     def feed(self, message: Mapping[str, Any]) -> None:
-        """One ``{"type": "input", "axes": [...], "buttons": [...], "seq": n, "t": ms}`` message."""
-        axes, buttons = message.get("axes") or [], message.get("buttons") or []
-        if not isinstance(axes, Sequence) or not isinstance(buttons, Sequence):
+        """One ``{"type": "input", "axes": [...], "buttons": [...], "seq": n, "t": ms}`` message;
+        ValueError (nothing fed) for one that is not a whole pad's state."""
+        axes, buttons = message.get("axes"), message.get("buttons")
+        if not isinstance(axes, Sequence) or not isinstance(buttons, Sequence) or isinstance(axes, str) \
+                or isinstance(buttons, str):
             raise ValueError("an input message needs lists 'axes' and 'buttons'")
         human, repaired = command_from_gamepad(axes, buttons, self.cfg.gamepad_trigger_threshold)
         seq = message.get("seq")
         with self._lock:
             self._latest, self._received_s, self._connected = human, self._clock(), True
+            self._gone = self._refused = None
             self._messages += 1
             self._repaired += repaired
             self._last_seq = int(seq) if isinstance(seq, int) else self._last_seq
@@ -133,12 +169,30 @@ class BrowserInput(HumanInput):
         return (self._connected and self._received_s is not None
                 and self._clock() - self._received_s <= self.cfg.manual_timeout_s)
 
+    def _lost_reason(self) -> str | None:
+        """Why the person's input is missing now (None while it is fresh)."""
+        if self._fresh():
+            return None
+        if not self._connected:
+            return self._gone or NO_PAGE
+        if self._refused is not None:
+            return f"the pilot's input is refused ({self._refused})"
+        if self._received_s is None:
+            return "the pilot's page has sent no input yet"
+        return f"the pilot's page sent no input for more than {self.cfg.manual_timeout_s:g} s"
+
+    def why_holding(self) -> str | None:
+        """Why the vehicle would hold now on the person's account: a latched hold's reason, or
+        why the input is missing; None while the input is fresh and nothing is latched."""
+        with self._lock:
+            return self._latched or self._lost_reason()
+
     def read(self, obs: Observation | None = None) -> HumanCommand:
         """The page's sticks; ``hold`` while it is silent or a lost link's hold is latched."""
         with self._lock:
             if not self._fresh():
                 if self._latest.override_held and self._latched is None:
-                    self._latched = "the console's page lost its link while the person held the override"
+                    self._latched = f"{self._lost_reason()} while the person held the override"
                     log.warning("%s: holding position; the policy does not take over", self._latched)
                 return HumanCommand(JoystickCommand.neutral(), override_held=self._latched is not None,
                                     hold=True)
@@ -152,4 +206,5 @@ class BrowserInput(HumanInput):
     def status(self) -> BrowserStatus:
         with self._lock:
             return BrowserStatus(self._connected, self._fresh(), self._latched is not None or not self._fresh(),
-                                 self._latched, self._messages, self._repaired, self._last_seq, self._latest)
+                                 self._latched, self._lost_reason(), self._messages, self._repaired,
+                                 self._last_seq, self._latest)

@@ -10,6 +10,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
+from multidict import CIMultiDict
 
 from companion.config import CompanionConfig
 from companion.console.access import (
@@ -43,6 +44,24 @@ def test_origin_must_be_the_consoles_own() -> None:
     assert not origin_ok("http://127.0.0.1:8765", None)
 
 
+@pytest.mark.parametrize("origin", [
+    "https://127.0.0.1:8765",  # the console serves plain http: another origin
+    "ws://127.0.0.1:8765", "file://127.0.0.1:8765", "http://127.0.0.1:8765/", "http://127.0.0.1:8765/ws",
+    "http://user@127.0.0.1:8765", "http://127.0.0.1:87650", "http://127.0.0.1", "http://127.0.0.1:8765 ",
+    "http://127.0.0.1:8765, http://evil.example", "", "127.0.0.1:8765",
+])
+def test_origin_is_exactly_the_consoles_own(origin: str) -> None:
+    assert not origin_ok(origin, "127.0.0.1:8765")
+
+
+def test_an_origin_header_sent_twice_is_refused() -> None:
+    own = "http://127.0.0.1:8765"
+    assert origin_ok([own], "127.0.0.1:8765") and origin_ok([], "127.0.0.1:8765")
+    assert origin_ok("HTTP://LOCALHOST:8765", "localhost:8765") and origin_ok("http://[::1]:8765", "[::1]:8765")
+    assert not origin_ok([own, own], "127.0.0.1:8765")
+    assert not origin_ok([own, "http://evil.example"], "127.0.0.1:8765")
+
+
 def test_token_is_compared_only_when_set() -> None:
     assert token_ok(None, None) and token_ok("anything", None)
     assert token_ok(TOKEN, TOKEN)
@@ -71,6 +90,20 @@ def test_another_sites_page_cannot_open_the_socket(tmp_path: Path) -> None:
                 await client.ws_connect("/ws", headers={"Origin": "http://evil.example"})
             assert refused.value.status == 403
             assert server.pilot is None and server.session.human.status().messages == 0
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.parametrize("origins", [["https://127.0.0.1:{port}"], ["http://127.0.0.1:{port}", "http://127.0.0.1:{port}"],
+                                     ["http://127.0.0.1:{port}", "http://evil.example"]])
+def test_an_https_or_doubled_origin_cannot_open_the_socket(tmp_path: Path, origins: list[str]) -> None:
+    async def scenario() -> None:
+        server = _server(tmp_path)
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            headers = CIMultiDict(("Origin", o.format(port=ts.port)) for o in origins)
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await client.ws_connect("/ws", headers=headers)
+            assert refused.value.status == 403 and not server.clients
 
     asyncio.run(scenario())
 

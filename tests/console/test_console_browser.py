@@ -122,11 +122,13 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
                 # right stick forward (y = -0.8 is up) with the right trigger held
                 page.evaluate("window.__pad.axes[3] = -0.8; window.__pad.buttons[7] = 1.0")
                 _wait(page, "window.colConsole.lastStep.who === 'person'", 10)
-                first = page.evaluate("window.colConsole.lastStep.step")
-                # 30 control steps (3 s of flight) on the person's stick, however long a busy
-                # machine takes to fly them
-                _wait(page, f"window.colConsole.steps.filter((s) => s.who === 'person' && s.step >= {first})"
-                            ".length >= 30", 60)
+                first = page.evaluate("window.colConsole.lastStep")
+                # 30 control steps and 3 s of the vehicle's own time on the person's stick, however
+                # long a busy machine takes to fly them (a starved SITL's clock runs slow; a step on
+                # its stale telemetry holds and is neither shown nor recorded)
+                _wait(page, f"(() => {{ const p = window.colConsole.steps.filter((s) => s.who === 'person'"
+                            f" && s.step >= {first['step']}); return p.length >= 30"
+                            f" && p[p.length - 1].timeBootMs - {first['time_boot_ms']} >= 3000; }})()", 120)
                 after = sim.truth()
                 shot(page, tmp_path, "console_intervening.png")
                 page.evaluate("window.__pad.axes[3] = 0; window.__pad.buttons[7] = 0")
@@ -138,7 +140,8 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
             dn = after["vehicle_ned"][0] - before["vehicle_ned"][0]
             de = after["vehicle_ned"][1] - before["vehicle_ned"][1]
             along, across = dn * fwd[0] + de * fwd[1], -dn * fwd[1] + de * fwd[0]
-            assert along > 1.5, f"pushed forward for 30 steps but moved only {along:.2f} m forward ({dn:.2f} N, {de:.2f} E)"
+            assert along > 1.5, (f"pushed forward for 3 s of the vehicle's time but moved only {along:.2f} m forward "
+                                 f"({dn:.2f} N, {de:.2f} E)")
             assert abs(across) < 0.5 * along
 
             page.click("#stop")
@@ -158,8 +161,10 @@ def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded
         rows = list(csv.DictReader(f))
     assert sorted(int(r["step"]) for r in rows) == person_steps
     assert {r["source"] for r in rows} == {"intervention"}
-    taken = sorted(s["step"] for s in seen if s["who"] in ("person", "hold"))  # a busy machine may hold a tick
-    assert taken == list(range(taken[0], taken[-1] + 1)), "one continuous intervention"
+    # one continuous intervention: no step between the person's first and last flown by the policy
+    # (a busy machine may hold a tick; a step on stale telemetry is not shown at all)
+    taken = sorted(s["step"] for s in seen if s["who"] in ("person", "hold"))
+    assert all(s["who"] in ("person", "hold") for s in seen if taken[0] <= s["step"] <= taken[-1])
     assert len(person_steps) >= 20  # 3 s held at 10.5 Hz, with slack for a busy machine
     for r in rows:  # the stick as pushed: pitch forward only (deadband and expo act later)
         assert float(r["pitch"]) == pytest.approx(0.8, abs=1e-6)

@@ -149,3 +149,70 @@ def test_malformed_messages_are_logged_refused_and_keep_the_socket(tmp_path: Pat
     with caplog.at_level(logging.WARNING, logger="companion.console.server"):
         asyncio.run(scenario())
     assert any(why in r.getMessage() and "refused" in r.getMessage() for r in caplog.records)
+
+
+async def _errors(ws, count: int, timeout_s: float = 20.0) -> list[dict]:  # type: ignore[no-untyped-def]
+    """Error messages until one carries ``count`` (the server's running count of that reason)."""
+    seen: list[dict] = []
+    while not seen or seen[-1].get("count") != count:
+        seen.append(await _next_of(ws, "error", timeout_s))
+    return seen
+
+
+def test_a_pad_that_is_not_a_pad_is_refused_and_every_refusal_is_counted(tmp_path: Path) -> None:
+    async def scenario() -> None:
+        server = make_server(tmp_path)
+        human = server.session.human
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            ws = await client.ws_connect("/ws")
+            await ws.send_json(PILOT)
+            await _next_of(ws, "role")
+            two_axes = {**INPUT, "axes": [0, -0.5]}  # a pad with one stick, trigger held
+            await ws.send_json(two_axes)
+            first = await _next_of(ws, "error")
+            assert first["message"].startswith("this gamepad reports 2 axes") and first["count"] == 1
+            for _ in range(4):  # a broken pad sends 30 a second: counted, told with the count
+                await ws.send_json(two_axes)
+            assert (await _errors(ws, 5))[-1]["message"] == first["message"]
+            assert human.status().messages == 0  # nothing of it reached the session: no centred sticks
+
+            await ws.send_json({**INPUT, "buttons": [1.0] * 7})  # no trigger: refused, not "released"
+            assert "reports 7 buttons" in (await _next_of(ws, "error"))["message"]
+            await ws.send_json(INPUT)  # good input
+            assert await _until(lambda: human.status().messages == 1)
+            await ws.send_json(two_axes)  # the same fault again: told again, counted on
+            assert (await _errors(ws, 6))[-1]["message"] == first["message"]
+            # the good input ages out: the input's status says it is refused, and why (not "lost its link")
+            assert await _until(lambda: "refused (this gamepad reports 2 axes" in (human.status().lost_reason or ""))
+            assert human.read().hold and "refused (this gamepad" in (human.status().hold_reason or "")
+            await ws.close()
+
+    asyncio.run(scenario())
+
+
+def test_the_inputs_status_names_how_the_pilot_left(tmp_path: Path) -> None:
+    async def scenario() -> None:
+        server = make_server(tmp_path)
+        human = server.session.human
+        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+            ws = await client.ws_connect("/ws")
+            page = (await _next_of(ws, "hello"))["role"]["page"]
+            await ws.send_json(PILOT)
+            await _next_of(ws, "role")
+            await ws.send_json(INPUT)  # the trigger held
+            assert await _until(lambda: human.status().messages == 1)
+            await ws.send_json({"type": "role", "want": "watch"})  # the pilot gives the role up
+            assert (await _next_of(ws, "role"))["role"] == "watch"
+            assert human.status().lost_reason == f"the pilot (page {page}) gave up the role"
+            assert human.read().hold
+            assert human.status().hold_reason == f"the pilot (page {page}) gave up the role while the person held the override"
+            assert server.session.status()["input"]["hold_reason"] == human.status().hold_reason
+
+            await ws.send_json(PILOT)  # back, and then its link drops
+            await _next_of(ws, "role")
+            await ws.send_json(INPUT)
+            assert await _until(lambda: human.status().messages == 2)
+            await ws.close()
+            assert await _until(lambda: human.status().lost_reason == f"the pilot's page {page} lost its link to the console")
+
+    asyncio.run(scenario())

@@ -156,3 +156,29 @@ def test_a_pad_too_close_to_see_is_said_to_fill_the_image() -> None:
     assert step_message(_view(None, down_m=-2.5), None, 0, Hud(), watch)["pad_fills_image"]  # 1 m: 210 px
     assert not step_message(_view(None, down_m=-5.0), None, 0, Hud(), watch)["pad_fills_image"]
     assert not step_message(_view(None, down_m=-2.5), None, 0, Hud(), _EpisodeWatch())["pad_fills_image"]
+
+
+def test_the_runs_status_reaches_the_pages_before_its_first_step(session: ConsoleSession) -> None:
+    """The 4 Hz status trails the steps: the session publishes its status itself when the run
+    is connected and when each episode starts, so no page sees a step of a run it thinks is starting."""
+    from types import SimpleNamespace
+
+    vehicle = SimpleNamespace(camera=None, simulator=SimpleNamespace(address="127.0.0.1:4567"))
+    learner = SimpleNamespace(latest_snapshot=SimpleNamespace(version=3), last_loss=None)
+    session.started(vehicle, learner, [])  # type: ignore[arg-type]
+    statuses = [m for m in session.published if m["type"] == "status"]  # type: ignore[attr-defined]
+    assert statuses and statuses[-1]["run"]["state"] == "running" and statuses[-1]["simulator"] == "127.0.0.1:4567"
+    session.set_auto(True)
+    assert session.before_episode(4, Phase.DEMONSTRATION)
+    last = [m for m in session.published if m["type"] == "status"][-1]  # type: ignore[attr-defined]
+    assert last["run"]["episode"] == 4 and last["run"]["phase"] == "demonstration" and last["run"]["state"] == "running"
+
+
+def test_a_hold_step_names_why_the_person_holds(session: ConsoleSession) -> None:
+    session.human.connected()
+    session.human.refused("this gamepad reports 2 axes; the console needs 4")
+    session.on_step(_view(None))  # a step the person's missing input holds
+    step = [m for m in session.published if m["type"] == "step"][-1]  # type: ignore[attr-defined]
+    assert step["who"] == "hold"
+    assert step["hold_reason"] == "the pilot's input is refused (this gamepad reports 2 axes; the console needs 4)"
+    assert session.status()["input"]["lost_reason"] == step["hold_reason"]

@@ -10,6 +10,8 @@ const STALE_MS = 1000;         // no camera frame for this long while a run flie
 const STEP_STALE_MS = 1500;    // no control step for this long: the HUD stops saying who flies
 const FRAMES_KEPT = 10;        // recent frames by number, to draw each detection on its own frame
 const ACTIVE = ["starting", "running", "ready", "paused", "stopping"];
+const FLYING = ["starting", "running", "stopping"];  // states whose steps fly: a vehicle-side gap matters
+const AXES_NEEDED = 4, BUTTONS_NEEDED = 8;  // both sticks and button 7 (the right trigger): the server refuses less
 const COLOURS = { person: "#ff9800", policy: "#29b6f6", hold: "#e53935" };
 
 const C = window.colConsole = {
@@ -17,6 +19,9 @@ const C = window.colConsole = {
   framesDrawn: 0, frameLatenciesMs: [], drawTimesMs: [], frameStamps: [], steps: [], records: [], status: null,
   hello: null, lastStep: null, track: [], inputsSent: 0, connected: false, notices: [], errors: [],
   role: null, videoState: "waiting", hudState: "waiting", clockOffsetMs: 0,  // a test may move the clock
+  // the page's link to the console: connecting (first time), open, lost (it dropped; reconnecting),
+  // gone (a reconnect failed: the console stopped, or the network is down)
+  link: "connecting", failedAttempts: 0, lostAt: null, gap: null, banner: "",
   now: () => performance.now() + C.clockOffsetMs,
 };
 let ws = null, seq = 0, lastFrame = null, truth = null, lastFrameAt = null, lastStepAt = null;
@@ -43,16 +48,46 @@ function socketUrl() {
 }
 
 function connect() {
-  ws = new WebSocket(socketUrl());
-  ws.binaryType = "arraybuffer";
-  ws.onopen = () => { C.connected = true; setLink(true); };
-  ws.onclose = () => {
-    C.connected = false; C.role = null; setLink(false); updateControls();
-    showBanner("Link to the companion lost. If you were flying, the vehicle holds position. Reconnecting...");
+  const sock = ws = new WebSocket(socketUrl());
+  let opened = false;
+  sock.binaryType = "arraybuffer";
+  sock.onopen = () => {
+    opened = true; C.connected = true; C.link = "open"; C.failedAttempts = 0; C.lostAt = null; setLink();
+  };
+  sock.onclose = () => {
+    if (ws !== sock) return;
+    if (C.lostAt === null) C.lostAt = new Date();
+    if (opened) C.link = "lost";  // it was up: a moment's drop, or the console stopped
+    else { C.failedAttempts += 1; C.link = "gone"; }  // no answer at all: say so, and keep trying
+    C.connected = false; C.role = null;
+    offline();
     setTimeout(connect, 1000);
   };
-  ws.onmessage = (ev) => (typeof ev.data === "string" ? onJson(JSON.parse(ev.data)) : onFrame(ev.data));
+  sock.onmessage = (ev) => (typeof ev.data === "string" ? onJson(JSON.parse(ev.data)) : onFrame(ev.data));
 }
+
+// The page without its console: it says so, its controls are off and greyed, and nothing on it
+// pretends to know the run's state or this page's role (the last known state is named as such).
+function offline() {
+  setLink();
+  const b = document.getElementById("role");
+  b.textContent = "no role: not connected"; b.className = "badge";
+  document.getElementById("take-role").textContent = "Fly from this page";
+  const last = C.status ? C.status.run.state : null;
+  setText("run-state", `not connected: the run's state is unknown` + (last ? ` (last known: ${last})` : ""));
+  refreshBanner(); updateControls(); drawVideo();
+}
+
+function goneText() {
+  const since = C.lostAt ? C.lostAt.toLocaleTimeString() : "the start";
+  return `NO CONSOLE: this page cannot reach the console at ${location.host} (${C.failedAttempts} ` +
+    `failed attempt${C.failedAttempts === 1 ? "" : "s"} since ${since}): it stopped, or the network is down. Nothing ` +
+    "on this page acts, and what it shows is the last it knew. If the console still runs and the person was " +
+    "flying, the vehicle holds position; if it stopped, so did its run (a real vehicle's own failsafe " +
+    "acts when setpoints stop). Trying again every second.";
+}
+const LINK_LOST_TEXT = "LINK LOST: this page's link to the console dropped. If you were flying, the vehicle " +
+  "holds position. Nothing on this page acts until it is back. Reconnecting...";
 
 function send(obj) { if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(obj)); }
 function command(name, extra) { send(Object.assign({ type: "command", name }, extra || {})); }
@@ -75,7 +110,8 @@ function onJson(m) {
   } else if (m.type === "notice") {
     C.notices.push(m.text); setText("run-state", m.text);
     if (m.pilot_lost) showBanner(`${m.text}. Any page may now press "Fly from this page".`);
-  } else if (m.type === "error") { addError(m.message); }
+  } else if (m.type === "gap") { C.gap = m.gap || null; refreshBanner(); }
+  else if (m.type === "error") { addError(m.message, m.count); }
 }
 
 function onRole(r) {
@@ -95,9 +131,11 @@ function watchText() {
     : `This page watches and nobody is the pilot. Press "Fly from this page" to fly.`;
 }
 
-// The one place that decides the banner from what the page knows (status, last step, role): the
-// status (4 Hz) and the steps (10 Hz) must not take turns at it, or a hold flickers away.
-const INPUT_LOST = "the person's input is lost. The policy does not take over.";
+// The one place that decides the banner from what the page knows (link, status, gap, last step,
+// role): the status (4 Hz) and the steps (10 Hz) must not take turns at it, or a hold flickers
+// away. It names why the session holds: the page's own link, the vehicle's side (a gap: stale
+// telemetry, the vehicle link, a missing video frame), refused sticks, the pilot's role given up.
+const INPUT_LOST = "the person's input is lost";
 const HOLD_STEP_FRESH_MS = 3000;  // a hold step older than this (the episode ended, a new one starts) is history
 function stepHolds() {
   const st = runState();
@@ -105,22 +143,37 @@ function stepHolds() {
     && C.now() - lastStepAt < HOLD_STEP_FRESH_MS;
 }
 
+function holdReasons() {
+  const s = C.status, reasons = [];
+  const gap = C.gap && FLYING.includes(runState()) ? C.gap : null;
+  if (gap) reasons.push({ text: `${gap.holding ? "HOLDING POSITION" : "NOT RECORDED"}: ${gap.text}`, latched: false });
+  if (s && s.input.hold_reason && ACTIVE.includes(runState())) reasons.push({ text: `HOLDING POSITION: ${s.input.hold_reason}`, latched: true });
+  else if (stepHolds()) {
+    const why = C.lastStep.hold_reason || (s && s.input.lost_reason) || INPUT_LOST;
+    reasons.push({ text: `HOLDING POSITION: ${why}; the policy does not take over`, latched: false });
+  }
+  return reasons;
+}
+
 function refreshBanner() {
-  const s = C.status;
-  if (s && s.input.hold_reason) showHold(`${s.input.hold_reason}. Hold the trigger to fly, or "Hand back to policy".`);
-  else if (stepHolds()) showHold(INPUT_LOST);
-  else if (!C.connected) return;  // the lost-link banner stays until the page is back
-  else if (isPilot()) hideBanner();
+  document.body.classList.toggle("offline", C.link === "lost" || C.link === "gone");
+  if (C.link === "gone") { showBanner(goneText(), "gone"); return; }
+  if (C.link === "lost") { showBanner(LINK_LOST_TEXT); return; }
+  if (!C.connected) return;  // connecting for the first time
+  const reasons = holdReasons();
+  if (reasons.length) {
+    const text = reasons.map((r) => r.text).join(". ") + ".";
+    if (!isPilot()) showBanner(`${text} ${watchText()}`, "watch");
+    else if (reasons.some((r) => r.latched)) showBanner(`${text} Hold the trigger to fly, or "Hand back to policy".`);
+    else showBanner(text);
+  } else if (isPilot()) hideBanner();
   else if (C.role) showBanner(watchText(), "watch");
 }
 
-function showHold(reason) {
-  if (isPilot()) showBanner(`HOLDING POSITION: ${reason}`);
-  else showBanner(`HOLDING POSITION (${reason.split(".")[0]}). ${watchText()}`, "watch");
-}
-
 function onStatus(s) {
-  C.status = s; truth = s.truth || null;
+  C.status = s;
+  if ("truth" in s) truth = s.truth || null;  // the session's own status (a state change) carries none
+  if ("gap" in s.run) C.gap = s.run.gap || null;
   const r = s.run;
   let text = `${r.state}` + (r.condition ? ` - ${r.condition}, ${r.episodes} episodes` : "") +
     (r.episode !== null && r.episode !== undefined ? ` - episode ${r.episode} (${r.phase})` : "") +
@@ -170,7 +223,7 @@ function tlxAnswers() {
 }
 
 function updateControls() {
-  const st = runState(), pilot = isPilot(), active = ACTIVE.includes(st);
+  const st = runState(), pilot = isPilot(), active = ACTIVE.includes(st), offline = !C.connected;
   const last = C.records.length ? C.records[C.records.length - 1] : null;
   const hold = C.status && C.status.input.holding && C.status.input.hold_reason;
   const studyWaits = C.study && (!C.study.next || C.study.questionnaire_for);  // col study: finished, or the questionnaire first
@@ -178,14 +231,16 @@ function updateControls() {
     next: pilot && st === "running", stop: pilot && active && st !== "stopping", handback: pilot && !!hold,
     discard: pilot && !!last && !last.discarded && !["starting", "running", "stopping"].includes(st), auto: pilot };
   for (const [id, on] of Object.entries(enable)) document.getElementById(id).disabled = !on;
-  document.getElementById("take-role").disabled = !C.connected || (!pilot && C.role && C.role.pilot_page !== null);
+  document.getElementById("take-role").disabled = offline || (!pilot && C.role && C.role.pilot_page !== null);
+  for (const id of ["condition", "episodes"]) document.getElementById(id).disabled = offline || !!C.study;
+  for (const el of document.querySelectorAll("#tlx input, #tlx button")) el.disabled = offline;
 }
 
 function onStep(m) {
   if (C.trackEpisode !== m.episode) { C.track = []; C.trackEpisode = m.episode; }
   C.lastStep = m; lastStepAt = C.now();
   C.steps.push({ episode: m.episode, step: m.step, who: m.who, recorded: m.recorded, tag: m.tag,
-    wallMs: m.wall_ms, forward: m.setpoint.forward_m_s, frame: m.frame_number });
+    wallMs: m.wall_ms, forward: m.setpoint.forward_m_s, frame: m.frame_number, timeBootMs: m.time_boot_ms });
   if (C.steps.length > 20000) C.steps.splice(0, 10000);
   C.track.push({ n: m.position_ne_m[0], e: m.position_ne_m[1], who: m.who });
   if (m.who === "hold" || C.steps.length < 2 || C.steps[C.steps.length - 2].who === "hold") refreshBanner();
@@ -216,6 +271,7 @@ function onFrame(buf) {
 }
 
 function videoState() {
+  if (C.link === "lost" || C.link === "gone") return "offline";
   const active = ACTIVE.includes(runState());
   if (!active) return lastFrame ? "idle" : "no-video";
   if (!lastFrame) return "waiting";
@@ -236,7 +292,8 @@ function drawVideo() {
     g.globalAlpha = state === "live" ? 1 : 0.35;
     g.drawImage(lastFrame.bitmap, 0, 0, cv.width, cv.height); g.globalAlpha = 1;
   }
-  if (state === "stale") banner(g, cv.width, cv.height, `VIDEO STALE: no frame for ${((C.now() - lastFrameAt) / 1000).toFixed(1)} s`, "#ffeb3b");
+  if (state === "offline") banner(g, cv.width, cv.height, `NO LINK TO THE CONSOLE${lastFrame ? ": the last frame it sent" : ""}`, "#ef5350");
+  else if (state === "stale") banner(g, cv.width, cv.height, `VIDEO STALE: no frame for ${((C.now() - lastFrameAt) / 1000).toFixed(1)} s`, "#ffeb3b");
   else if (state === "idle") banner(g, cv.width, cv.height, "NO RUN: last frame of the previous run", "#bbb");
   else if (state === "no-video") banner(g, cv.width, cv.height, "NO VIDEO: no run", "#888");
   else if (state === "waiting") banner(g, cv.width, cv.height, "waiting for the camera", "#888");
@@ -259,6 +316,7 @@ function drawHud(g, w, h, video) {
     g.fillStyle = "rgba(0,0,0,0.55)"; g.fillRect(x - 3, y - 2, g.measureText(text).width + 6, 19);
     g.fillStyle = colour || "#fff"; g.fillText(text, x, y);
   };
+  if (video === "offline") { C.hudState = "offline"; line("NO LINK: who flies is unknown", 10, 10, "#bbb"); return; }
   const fresh = s && active && lastStepAt !== null && C.now() - lastStepAt <= STEP_STALE_MS;
   C.hudState = !active ? "idle" : (fresh ? "flying" : "no-step");
   if (!fresh) {
@@ -272,7 +330,7 @@ function drawHud(g, w, h, video) {
   line(`HDG ${String(Math.round(s.heading_deg) % 360).padStart(3, "0")}\u00b0 (image up = nose)`, 10, 54);
   const [padText, padColour] = padLine(s);
   line(padText, 10, 76, padColour);
-  const who = { person: "PERSON FLIES", policy: "POLICY FLIES", hold: "HOLDING (input lost)" }[s.who];
+  const who = { person: "PERSON FLIES", policy: "POLICY FLIES", hold: "HOLDING (no usable input)" }[s.who];
   g.font = "bold 20px sans-serif";
   line(who, w - g.measureText(who).width - 14, 10, COLOURS[s.who]);
   g.font = "bold 15px monospace";
@@ -403,12 +461,13 @@ function gamepad() {
 
 function readInput() {
   const p = gamepad();
-  if (p) {
-    return { source: p.id || "gamepad", axes: Array.from(p.axes).slice(0, 4),
+  if (p) {  // sent as the pad reports it: a pad with fewer axes or buttons is refused, never padded
+    return { source: p.id || "gamepad", axes: Array.from(p.axes).slice(0, AXES_NEEDED),
       buttons: Array.from(p.buttons).map((b) => (typeof b === "object" ? b.value : Number(b))) };
   }
+  // the keyboard is a whole pad: both sticks (4 axes) and 8 buttons, Space the trigger (button 7)
   const k = (a, b) => (keys.has(a) ? -KEY_STICK : 0) + (keys.has(b) ? KEY_STICK : 0);
-  const buttons = new Array(8).fill(0); buttons[7] = keys.has(" ") ? 1 : 0;
+  const buttons = new Array(BUTTONS_NEEDED).fill(0); buttons[7] = keys.has(" ") ? 1 : 0;
   return { source: "keyboard", axes: [k("a", "d"), k("w", "s"), k("ArrowLeft", "ArrowRight"), k("ArrowUp", "ArrowDown")], buttons };
 }
 
@@ -420,8 +479,11 @@ function sendInput() {
   const key = JSON.stringify([inp.axes, inp.buttons[7]]);
   if (key === lastSent.key && now - lastSent.at < 1000 / SEND_HZ) return;
   lastSent = { key, at: now };
-  const src = inp.source === "keyboard" ? (inField() ? "keyboard: typing in a form field (Space still overrides; click the video to fly)" : "no gamepad: keyboard") : `gamepad: ${inp.source}`;
-  setText("pad-state", isPilot() ? src : `${src} - watching, not sent`);
+  let src = inp.source === "keyboard" ? (inField() ? "keyboard: typing in a form field (Space still overrides; click the video to fly)" : "no gamepad: keyboard") : `gamepad: ${inp.source}`;
+  if (inp.source !== "keyboard" && (inp.axes.length < AXES_NEEDED || inp.buttons.length < BUTTONS_NEEDED)) {
+    src += ` - reports ${inp.axes.length} axes and ${inp.buttons.length} buttons, not the standard layout: refused`;
+  }
+  setText("pad-state", isPilot() ? src : `${src} - ${C.connected ? "watching" : "not connected"}, not sent`);
   drawStick("stick-left", inp.axes[0], inp.axes[1]);
   drawStick("stick-right", inp.axes[2], inp.axes[3]);
   document.getElementById("trigger-bar").style.height = `${Math.round(100 * Math.min(1, Math.max(0, inp.buttons[7] || 0)))}%`;
@@ -441,20 +503,29 @@ function drawStick(id, x, y) {
 
 // ----- page furniture ----------------------------------------------------------------------
 function setText(id, text) { document.getElementById(id).textContent = text; }
-function setLink(ok) { const b = document.getElementById("link"); b.textContent = ok ? "connected" : "disconnected"; b.className = `badge ${ok ? "ok" : "bad"}`; }
-function showBanner(text, kind) { const b = document.getElementById("banner"); b.textContent = text; b.className = `banner ${kind || ""}`; }
-function hideBanner() { document.getElementById("banner").className = "banner hidden"; }
+function setLink() {
+  const b = document.getElementById("link");
+  b.textContent = { open: "connected", lost: "link lost: reconnecting", gone: "no console", connecting: "connecting" }[C.link];
+  b.className = `badge ${C.link === "open" ? "ok" : "bad"}`;
+}
+function showBanner(text, kind) { const b = document.getElementById("banner"); b.textContent = text; b.className = `banner ${kind || ""}`; C.banner = text; }
+function hideBanner() { document.getElementById("banner").className = "banner hidden"; C.banner = ""; }
 
 // Errors stay until the person dismisses them; the same error again counts up instead of piling up.
-function addError(text) {
+// The server counts its refusals (``count``: how often this page's messages were refused for that
+// reason; a run of them is told at most twice a second); the page's own errors count here.
+function addError(text, count) {
   const same = C.errors.find((e) => e.text === text && !e.dismissed);
-  if (same) { same.count += 1; same.el.querySelector("span").textContent = `${text} (x${same.count})`; return; }
-  const el = document.createElement("div"); el.className = "error";
-  const span = document.createElement("span"); span.textContent = text;
-  const close = document.createElement("button"); close.textContent = "Dismiss";
-  const entry = { text, count: 1, el, dismissed: false };
-  close.onclick = () => { entry.dismissed = true; el.remove(); };
-  el.append(span, close); document.getElementById("errors").appendChild(el); C.errors.push(entry);
+  const entry = same || { text, count: 0, el: document.createElement("div"), dismissed: false };
+  entry.count = Number.isInteger(count) ? Math.max(count, entry.count) : entry.count + 1;
+  if (!same) {
+    const span = document.createElement("span"), close = document.createElement("button");
+    close.textContent = "Dismiss";
+    close.onclick = () => { entry.dismissed = true; entry.el.remove(); };
+    entry.el.className = "error"; entry.el.append(span, close);
+    document.getElementById("errors").appendChild(entry.el); C.errors.push(entry);
+  }
+  entry.el.querySelector("span").textContent = entry.count > 1 ? `${text} (x${entry.count})` : text;
 }
 
 window.addEventListener("keydown", (e) => {
