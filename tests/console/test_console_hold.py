@@ -45,15 +45,17 @@ class Page:
 
     async def _receive(self) -> None:
         async for msg in self.ws:
-            if msg.type != aiohttp.WSMsgType.TEXT:
-                continue
-            m = json.loads(msg.data)
-            if m["type"] == "step":
-                self.steps.append(m)
-            elif m["type"] == "status":
-                self.status = m
-            elif m["type"] == "hello":
-                self.hello = m
+            if msg.type == aiohttp.WSMsgType.TEXT:
+                self.keep(json.loads(msg.data))
+
+    def keep(self, m: dict) -> None:
+        """Keep what a test reads of one message."""
+        if m["type"] == "step":
+            self.steps.append(m)
+        elif m["type"] == "status":
+            self.status = m
+        elif m["type"] == "hello":
+            self.hello = m
 
     async def until(self, test, timeout_s: float) -> None:  # type: ignore[no-untyped-def]
         deadline = time.monotonic() + timeout_s

@@ -7,31 +7,17 @@ console is gone says so with its controls off."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from companion.config import CompanionConfig
-from companion.console.server import ConsoleServer
-from companion.console.session import ConsoleOptions, ConsoleSession
 from companion.control.gaps import STALE_TELEMETRY, VIDEO_MISSING
 from tests.console.test_console_browser import FAKE_PAD, PATIENCE, _browser_or_skip, _wait, shot
 from tests.console.test_console_pages import Served, _browser
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(240)]
 C = "window.colConsole"
-
-
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    cfg = CompanionConfig()
-    s = Served(ConsoleServer(lambda publish, frame: ConsoleSession(cfg, ConsoleOptions(run_dir=tmp_path / "run"),
-                                                                   publish, frame)))
-    try:
-        yield s
-    finally:
-        s.close()
 
 
 def _until(test: Callable[[], bool], timeout_s: float, what: str) -> None:

@@ -6,17 +6,14 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from aiohttp import web
 
-from companion.config import CompanionConfig
 from companion.console.frames import encode_for_page
 from companion.console.server import ConsoleServer
-from companion.console.session import ConsoleOptions, ConsoleSession
 from sitl.frames import Frame
 from tests.console.test_console_browser import (
     CHROMIUM,
@@ -53,17 +50,6 @@ class Served:
     def close(self) -> None:
         self.loop.call_soon_threadsafe(self._stop.set)
         self.thread.join(30)
-
-
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    cfg = CompanionConfig()
-    s = Served(ConsoleServer(lambda publish, frame: ConsoleSession(cfg, ConsoleOptions(run_dir=tmp_path / "run"),
-                                                                   publish, frame)))
-    try:
-        yield s
-    finally:
-        s.close()
 
 
 def _browser(pw, tmp_path: Path, extra: list[str] | None = None):  # type: ignore[no-untyped-def]

@@ -34,19 +34,10 @@ class GapPage(Page):
         self.gaps: list[dict | None] = []
         super().__init__(ws)
 
-    async def _receive(self) -> None:
-        async for msg in self.ws:
-            if msg.type != aiohttp.WSMsgType.TEXT:
-                continue
-            m = json.loads(msg.data)
-            if m["type"] == "gap":
-                self.gaps.append(m["gap"])
-            elif m["type"] == "step":
-                self.steps.append(m)
-            elif m["type"] == "status":
-                self.status = m
-            elif m["type"] == "hello":
-                self.hello = m
+    def keep(self, m: dict) -> None:
+        if m["type"] == "gap":
+            self.gaps.append(m["gap"])
+        super().keep(m)
 
 
 def sitl_child(console_pid: int) -> int:
