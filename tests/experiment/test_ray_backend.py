@@ -38,8 +38,10 @@ from companion.experiment.results import TrialResult
 from companion.experiment.runner import run_grid
 
 # one worker runs these in turn: each checks that no Ray process or session folder is left,
-# which another worker's Ray instance (started at the same time) would break
-pytestmark = [pytest.mark.xdist_group("ray"), pytest.mark.timeout(900)]  # upper bound at load ~10
+# which another worker's Ray instance (started at the same time) would break. The same worker runs
+# the lockstep trial reruns (group cpu-heavy): one CPU-heavy burst at a time beside the real-time
+# tests (two at once, a load of 13 on 2 cores, starved real PX4's offboard stream in a CI run)
+pytestmark = [pytest.mark.xdist_group("cpu-heavy"), pytest.mark.timeout(900)]  # upper bound at load ~10
 REPO = Path(__file__).resolve().parents[2]
 DRIVER_PID = os.getpid()
 """This process: the driver of the Ray instances the tests start (captured by value by Ray)."""
