@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 import pytest
@@ -40,6 +41,14 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def gap_steps(notes: Iterable[str]) -> int:
+    """The steps an episode record's notes say were not recorded for a gap: held on stale
+    telemetry or flown without a camera frame (companion/control/gaps.py), as a busy machine's
+    real-time SITL may cause."""
+    found = (re.match(r"(\d+) steps (held on stale telemetry|flown without a camera frame)", n) for n in notes)
+    return sum(int(m.group(1)) for m in found if m)
 
 
 def wait_until(test: Callable[[], bool], timeout_s: float = 30.0) -> bool:

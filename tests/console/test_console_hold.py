@@ -18,6 +18,7 @@ import aiohttp
 import pytest
 
 from companion.simulator import SimulatorClient
+from tests.conftest import gap_steps
 from tests.console import stop
 
 REPO = Path(__file__).resolve().parents[2]
@@ -114,10 +115,14 @@ async def _scenario(url: str, run_dir: Path) -> None:  # noqa: C901 - one story,
         rows = list(csv.DictReader(f))
     assert {r["source"] for r in rows} == {"intervention"}
     steps = sorted(int(r["step"]) for r in rows)  # the held steps only: nothing while the page was gone
-    assert steps == list(range(steps[0], steps[-1] + 1)) and steps[-1] < first_hold
+    assert steps[-1] < first_hold
     assert flown <= len(rows) <= flown + 2  # a step or two may have been in flight as the page closed
     records = [json.loads(line) for line in (run_dir / "episodes.jsonl").read_text().splitlines()]
     assert records[0]["outcome"] == "stopped" and records[0]["interventions"] == 1
+    # one stretch of the person's steps; a step of it on stale telemetry or without its camera frame
+    # (a busy machine) is not recorded, and the episode's notes count it
+    missing = set(range(steps[0], steps[-1] + 1)) - set(steps)
+    assert len(missing) <= gap_steps(records[0]["notes"]), (sorted(missing), records[0]["notes"])
 
 
 def test_a_dropped_page_holding_the_override_holds_the_vehicle(tmp_path: Path) -> None:

@@ -25,7 +25,7 @@ from companion.app import RunOptions, run_episodes
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import load_companion_config
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
-from tests.conftest import free_port
+from tests.conftest import free_port, gap_steps
 from tests.mav_client import MavTestClient
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
@@ -157,16 +157,21 @@ def test_ground_station_override_is_flown_and_only_its_steps_are_recorded(
     assert not any(flags[:first]) and all(flags[first:first + len(held_steps)]) and not flags[-1]  # policy, person, policy
     expected = CommandMapper(cfg.commands).to_setpoint(JoystickCommand(roll=0.0, pitch=PITCH, yaw=0.0, throttle=THROTTLE))
     assert record.interventions == 1
-    assert record.human_samples == len(held_steps) >= int(0.7 * HOLD_FOR_S * cfg.session.control_rate_hz)
-    for sp in held_steps:  # the person's sticks went out, within the tick
-        assert (sp.vx, sp.vy, sp.vz) == pytest.approx((expected.forward_m_s, expected.right_m_s, expected.down_m_s), abs=1e-6)
+    # a step of the take-over on stale telemetry or without its camera frame (a busy machine) is
+    # not recorded (the stale one holds instead); the episode's notes count them
+    gaps = gap_steps(record.notes)
+    assert len(held_steps) - gaps <= record.human_samples <= len(held_steps), (record.notes, len(held_steps))
+    assert record.human_samples >= int(0.7 * HOLD_FOR_S * cfg.session.control_rate_hz)
+    person = [sp for sp in held_steps  # the person's sticks went out, within the tick
+              if (sp.vx, sp.vy, sp.vz) == pytest.approx((expected.forward_m_s, expected.right_m_s, expected.down_m_s), abs=1e-6)]
+    assert len(held_steps) - len(person) <= gaps
 
     with (tmp_path / "run" / "human.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == record.human_samples
     assert {r["source"] for r in rows} == {"intervention"}
-    steps = [int(r["step"]) for r in rows]
-    assert steps == list(range(steps[0], steps[0] + len(steps)))  # one contiguous take-over
+    steps = [int(r["step"]) for r in rows]  # one take-over, but for its gaps
+    assert steps == sorted(steps) and len(set(range(steps[0], steps[-1] + 1)) - set(steps)) <= gaps
     assert all(float(r["pitch"]) == pytest.approx(PITCH) and float(r["throttle"]) == pytest.approx(THROTTLE) for r in rows)
     # The vehicle follows: over the last 0.8 s of the take-over it flies the sticks' velocity.
     t_end = held_steps[-1]._timestamp
