@@ -609,11 +609,16 @@ class EpisodeRunner:
                 outcome = stop
                 break
             steps = step + 1
-            if self._fresh.admit(snap):
-                outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
-            else:
-                self._hold_on_stale(step)
-                outcome_now = None
+            try:
+                if self._fresh.admit(snap):
+                    outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
+                else:
+                    self._hold_on_stale(step)
+                    outcome_now = None
+            except LinkLost as exc:  # the link fell silent between the telemetry and the setpoint
+                log.warning("step %d: %s", step, exc)
+                snap = None  # the next step recovers the link, as when the telemetry says so
+                continue
             if outcome_now is not None:
                 outcome = outcome_now
                 break
@@ -756,18 +761,22 @@ class EpisodeRunner:
         action = self._ask(phase, step, score, human)
         decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing)
         sp = HOLD  # what a watcher is shown while the vehicle holds or lands on a request
-        if action in (AskAction.HOLD, AskAction.LAND):
-            self._send_ask_action(action, snap)
-            self.trace.append((step, score, action.value))
-        else:
-            if self._hold_ned is not None:  # the hold ended: rate limits start from what is asked now
-                self._hold_ned = None
-                self.p.limiter.reset()
-            sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
-            if self._touchdown is not None:
-                sp = self._touchdown.apply(sp, snap)
-            self._send(sp)
-            self.trace.append((step, score, decision.source))
+        lost: LinkLost | None = None
+        try:
+            if action in (AskAction.HOLD, AskAction.LAND):
+                self._send_ask_action(action, snap)
+                self.trace.append((step, score, action.value))
+            else:
+                if self._hold_ned is not None:  # the hold ended: rate limits start from what is asked now
+                    self._hold_ned = None
+                    self.p.limiter.reset()
+                sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
+                if self._touchdown is not None:
+                    sp = self._touchdown.apply(sp, snap)
+                self._send(sp)
+                self.trace.append((step, score, decision.source))
+        except LinkLost as exc:  # silent since this step's telemetry: still a true sample; then recover
+            lost = exc
         self.step_latencies_s.append(time.perf_counter() - t_start)
         if decision.record and action is not AskAction.LAND and self.p.dataset is not None:
             source = Source.DEMONSTRATION if decision.tag == "demonstration" else Source.INTERVENTION
@@ -776,6 +785,8 @@ class EpisodeRunner:
         if self.p.control is not None:
             self.p.control.on_step(StepView(episode, step, phase, obs, decision, sp, version,
                                             human.override_held, human.hold, self.p.observer.last_frame_number))
+        if lost is not None:
+            raise lost
         return None, version
 
     def _supervised_steps(self, phase: Phase, steps: int) -> int:

@@ -464,3 +464,34 @@ def test_a_step_without_its_camera_frame_flies_but_is_not_recorded() -> None:
     assert "3 steps flown without a camera frame, not recorded" in record.notes
     assert watcher.gaps == ["video", None]
     assert len(watcher.steps) == 12  # they flew (and were shown), unrecorded
+
+
+def test_a_link_lost_between_the_telemetry_and_the_setpoint_is_recovered_not_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The link may be declared lost after a step's telemetry was read and before its setpoint goes
+    out (a starved or frozen vehicle): the step's sample is still a true one, then the link-loss
+    path runs; the episode does not end in an error."""
+    link = KinematicLink((0.0, 0.0, -5.0))
+    runner, dataset = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.control.session.time.sleep", lambda s: None)
+    send = link.send_velocity_body
+    sent = [0]
+
+    def silent_once(sp, echo_time_boot_ms=None):  # type: ignore[no-untyped-def]
+        sent[0] += 1
+        if sent[0] == 6:  # the OFFBOARD hand-over's hold, then steps 0-3, then step 4's setpoint
+            raise LinkLost("nothing heard from the vehicle")
+        send(sp, echo_time_boot_ms)
+
+    link.send_velocity_body = silent_once  # type: ignore[method-assign]
+    recovered = []
+    original = runner._recover_link
+
+    def recover():  # type: ignore[no-untyped-def]
+        recovered.append(len(link.sent))
+        return original()
+
+    monkeypatch.setattr(runner, "_recover_link", recover)
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert record.outcome != "error" and record.steps == 12, record
+    assert recovered, "the link-loss path ran"
+    assert record.human_samples == len(dataset)  # the step whose setpoint was lost kept its true sample
