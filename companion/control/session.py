@@ -603,7 +603,9 @@ class EpisodeRunner:
                 if snap is None:
                     outcome = "link_lost"
                     break
-                snap = self._ensure_offboard(snap)
+                # the vehicle's failsafe may have left offboard meanwhile, and its 1 Hz HEARTBEAT
+                # saying so may not be in yet: ask again whatever the last one said
+                snap = self._ensure_offboard(snap, mode_known=False)
             stop = self._stop_reason(step, snap)
             if stop is not None:
                 outcome = stop

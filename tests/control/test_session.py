@@ -495,3 +495,24 @@ def test_a_link_lost_between_the_telemetry_and_the_setpoint_is_recovered_not_an_
     assert record.outcome != "error" and record.steps == 12, record
     assert recovered, "the link-loss path ran"
     assert record.human_samples == len(dataset)  # the step whose setpoint was lost kept its true sample
+
+
+def test_after_a_link_loss_offboard_is_asked_again_even_if_the_last_heartbeat_says_offboard(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """While the link was silent the vehicle's failsafe left OFFBOARD for a hold; the HEARTBEAT
+    saying so (1 Hz) may come after the link is back: the session must not trust the old one
+    (a fresh-clone CI run streamed the person's setpoints into a holding vehicle)."""
+    link = KinematicLink((0.0, 0.0, -5.0))
+    link.silent_frames = {6}
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=12)
+    monkeypatch.setattr("companion.control.session.time.sleep", lambda s: None)
+    original = runner._recover_link
+
+    def recover():  # type: ignore[no-untyped-def]
+        link.alive = True  # the snapshot still says OFFBOARD: its heartbeat is the old one
+        return original()
+
+    monkeypatch.setattr(runner, "_recover_link", recover)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert link.modes.count("OFFBOARD") == 2, link.modes
+    assert record.steps == 12 and record.outcome == "timeout"
