@@ -8,9 +8,6 @@ import asyncio
 import csv
 import json
 import math
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,7 +16,7 @@ import pytest
 
 from companion.simulator import SimulatorClient
 from tests.conftest import gap_steps
-from tests.console import stop
+from tests.console import start_console, stop
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(240)]
@@ -127,14 +124,8 @@ async def _scenario(url: str, run_dir: Path) -> None:  # noqa: C901 - one story,
 
 def test_a_dropped_page_holding_the_override_holds_the_vehicle(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
-    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    log = (tmp_path / "console.log").open("wb")
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir)],
-                            stdout=subprocess.PIPE, stderr=log, env=env, cwd=REPO)
+    proc, url = start_console(run_dir, tmp_path / "console.log")
     try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().decode()
-        assert line.startswith("CONSOLE "), (tmp_path / "console.log").read_text()
-        asyncio.run(_scenario(line.split()[1], run_dir))
+        asyncio.run(_scenario(url, run_dir))
     finally:
         stop(proc)

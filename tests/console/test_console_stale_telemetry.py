@@ -9,8 +9,6 @@ import csv
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,7 +17,7 @@ import pytest
 
 from companion.experiment.ray_backend import process_children
 from companion.vision.observation import OBS_NAMES
-from tests.console import stop
+from tests.console import start_console, stop
 from tests.console.test_console_hold import Page, pad_state
 
 REPO = Path(__file__).resolve().parents[2]
@@ -98,19 +96,13 @@ async def _scenario(url: str, run_dir: Path, console_pid: int) -> None:
 
 
 def test_nothing_is_recorded_while_the_vehicle_is_frozen_and_the_page_says_why(tmp_path: Path) -> None:
-    run_dir = tmp_path / "run"
-    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    log = (tmp_path / "console.log").open("wb")
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir)],
-                            stdout=subprocess.PIPE, stderr=log, env=env, cwd=REPO)
+    run_dir, log = tmp_path / "run", tmp_path / "console.log"
+    proc, url = start_console(run_dir, log)
     started = time.monotonic()
     try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().decode()
-        assert line.startswith("CONSOLE "), (tmp_path / "console.log").read_text()
-        asyncio.run(_scenario(line.split()[1], run_dir, proc.pid))
+        asyncio.run(_scenario(url, run_dir, proc.pid))
     except BaseException:
-        print(f"console log after {time.monotonic() - started:.1f} s:\n{(tmp_path / 'console.log').read_text()[-6000:]}")
+        print(f"console log after {time.monotonic() - started:.1f} s:\n{log.read_text()[-6000:]}")
         raise
     finally:
         stop(proc)
