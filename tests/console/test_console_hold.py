@@ -18,7 +18,6 @@ from companion.simulator import SimulatorClient
 from tests.conftest import gap_steps
 from tests.console import start_console, stop
 
-REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(240)]
 
 

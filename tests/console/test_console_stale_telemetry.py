@@ -20,7 +20,6 @@ from companion.vision.observation import OBS_NAMES
 from tests.console import start_console, stop
 from tests.console.test_console_hold import Page, pad_state
 
-REPO = Path(__file__).resolve().parents[2]
 FROZEN_S = 4.0  # beyond link_lost_s (1.5 s): the stale-telemetry hold, then the link-loss path
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(300)]
 
