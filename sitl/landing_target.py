@@ -1,7 +1,7 @@
 """LANDING_TARGET as the autopilots read it, and the filters that turn it into a target estimate.
 
 Pure geometry and filtering with injected time (no I/O), shared by PX4's precision landing
-(:mod:`sitl.precland`) and ArduCopter's (:mod:`sitl.plnd`).
+(:mod:`sitl.px4_precland`) and ArduCopter's (:mod:`sitl.ardupilot_plnd`).
 
 The two message forms (MAVLink's landing target protocol):
 

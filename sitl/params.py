@@ -108,7 +108,7 @@ def autopilot_params(cfg: AutopilotConfig) -> list[Param]:
 def precland_params() -> list[Param]:
     """PX4's precision landing (PLD_*) and landing target estimator (LTEST_*) parameters, with
     PX4's defaults; listed last, so the others keep their indices."""
-    from sitl.precland import INT_PARAMS, PX4_LTEST_DEFAULTS, PX4_PRECLAND_DEFAULTS
+    from sitl.px4_precland import INT_PARAMS, PX4_LTEST_DEFAULTS, PX4_PRECLAND_DEFAULTS
 
     ranges = {"PLD_MAX_SRCH": (0, 100), "LTEST_MODE": (0, 1), "LTEST_ACC_UNC": (0.01, math.inf),
               "LTEST_POS_UNC_IN": (0.001, math.inf), "LTEST_VEL_UNC_IN": (0.001, math.inf),

@@ -20,6 +20,13 @@ from enum import IntEnum
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.ardupilot_plnd import (
+    INT16_PARAMS,
+    PLND_DEFAULTS,
+    REAL_PARAMS,
+    ApPrecLand,
+    ApTargetEstimator,
+)
 from sitl.config import SitlConfig
 from sitl.control import Setpoint
 from sitl.dynamics import VehicleState
@@ -52,7 +59,6 @@ from sitl.params import (
     apply_to_config,
     autopilot_params,
 )
-from sitl.plnd import INT16_PARAMS, PLND_DEFAULTS, REAL_PARAMS, ApPrecLand, ApTargetEstimator
 from sitl.vehicle import SimVehicle, hold_setpoint
 
 M = mavlink

@@ -22,7 +22,7 @@ from sitl.landing_target import LandingTargetRejected, TargetMeasurement
 from sitl.modes import Mode, refusal
 from sitl.offboard import SetpointRejected, TargetFields, from_reported_frame, to_setpoint
 from sitl.params import BINDING_BY_NAME, ParamStore, apply_to_config, autopilot_params
-from sitl.precland import (
+from sitl.px4_precland import (
     Guidance,
     PrecLandMode,
     Px4PrecLand,

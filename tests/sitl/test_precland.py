@@ -7,6 +7,7 @@ import math
 
 import pytest
 
+from sitl.ardupilot_plnd import PLND_DEFAULTS, ApPrecLand, ApState, ApTargetEstimator
 from sitl.landing_target import (
     FRAME_BODY_FRD,
     FRAME_LOCAL_NED,
@@ -19,8 +20,7 @@ from sitl.landing_target import (
     ray_from_angles,
     relative_from_ray,
 )
-from sitl.plnd import PLND_DEFAULTS, ApPrecLand, ApState, ApTargetEstimator
-from sitl.precland import (
+from sitl.px4_precland import (
     PX4_LTEST_DEFAULTS,
     PX4_PRECLAND_DEFAULTS,
     PrecLandMode,

@@ -37,7 +37,7 @@ from sitl.landing_target import (
     body_to_ned,
     ray_from_angles,
 )
-from sitl.precland import Guidance, ParamGetter, VehiclePose
+from sitl.px4_precland import Guidance, ParamGetter, VehiclePose
 
 LOST_AFTER_S = 2.0  # LANDING_TARGET_TIMEOUT_MS
 INIT_S = 2.0  # EKF_INIT_TIME_MS
