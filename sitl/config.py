@@ -90,7 +90,7 @@ class AutopilotConfig(Section):
     thrust_curve_quadratic: float = Field(
         0.54, gt=0, le=1, description="thrust/weight = q x^2 + (1-q) x, x = throttle/hover"
     )
-    # Land detector (sitl/control.py Px4LandDetector; docs/sitl.md "Land detector").
+    # Land detector (sitl/land_detector.py Px4LandDetector; docs/sitl.md "Land detector").
     land_detector: Literal["px4", "contact"] = Field(
         "px4", description="px4: PX4's LNDMC stages (commanded descent, stillness, low thrust); contact: landed at the first settling contact (before 2026-12; experiment files keep it)"
     )

@@ -15,9 +15,10 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.config import SitlConfig
-from sitl.control import FlightController, Px4LandDetector, Setpoint, wants_takeoff
+from sitl.control import FlightController, Setpoint, wants_takeoff
 from sitl.disturbance import EpisodeDisturbance
 from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Dynamics, VehicleState
+from sitl.land_detector import Px4LandDetector
 from sitl.landing_target import LandingTargetRejected, TargetMeasurement
 from sitl.modes import Mode, refusal
 from sitl.offboard import SetpointRejected, TargetFields, from_reported_frame, to_setpoint

@@ -14,12 +14,12 @@ from sitl.control import (
     MOTOR_ROLL,
     MOTOR_YAW,
     FlightController,
-    LandDetector,
     Setpoint,
     mix,
     throttle_for_lift,
 )
 from sitl.dynamics import Dynamics, VehicleState
+from sitl.land_detector import LandDetector
 from sitl.world import World
 
 NAN = math.nan

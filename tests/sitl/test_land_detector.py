@@ -13,9 +13,9 @@ import pytest
 from pymavlink.dialects.v20 import common as M
 
 from sitl.config import AutopilotConfig, SitlConfig
-from sitl.control import Px4LandDetector
 from sitl.dynamics import VehicleState
 from sitl.handler import MessageHandler
+from sitl.land_detector import Px4LandDetector
 from sitl.modes import Mode
 from sitl.offboard import FRAME_LOCAL_NED, TargetFields
 from sitl.params import encode_value

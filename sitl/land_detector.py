@@ -1,0 +1,155 @@
+"""PX4's land detector (``land_detector``, LNDMC_*) and a miniature one for the cascade's tests.
+
+Pure logic on the FDM state: whether the vehicle has landed, which the autopilot acts on
+(auto-disarm, mode refusals, take-off handling). Apart from the cascade, as PX4 runs it apart
+from its controllers.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sitl.config import AutopilotConfig
+from sitl.dynamics import VehicleState
+
+NAN = math.nan
+LOW_LIFT_RATIO = 0.95  # land detectors' "low thrust": asking for less lift than this x weight
+LANDED_WIDENING = 2.5  # PX4 widens the vertical and rotation limits once maybe landed
+
+
+class LandDetector:
+    """Landed = touching a surface, nearly still and asking for less lift than the weight,
+    continuously for ``hold_s`` (PX4's land detector in miniature; the cascade's tests use it,
+    the vehicle uses :class:`Px4LandDetector` or its contact rule, sitl/vehicle.py)."""
+
+    def __init__(
+        self,
+        dt_s: float,
+        hold_s: float = 0.3,
+        max_speed_m_s: float = 0.3,
+        max_lift_ratio: float = 0.95,
+    ) -> None:
+        self.dt_s = dt_s
+        self.hold_s = hold_s
+        self.max_speed_m_s = max_speed_m_s
+        self.max_lift_ratio = max_lift_ratio
+        self.reset()
+
+    def reset(self) -> None:
+        self._still_s = 0.0
+        self.landed = False
+
+    def update(self, state: VehicleState, lift_ratio: float, armed: bool = True) -> bool:
+        """Feed one step; ``lift_ratio`` is :attr:`FlightController.lift_ratio` (0 if off)."""
+        vn, ve, vd = state.velocity_ned_m_s
+        still = (
+            state.on_ground
+            and vn * vn + ve * ve + vd * vd < self.max_speed_m_s**2
+            and (not armed or lift_ratio < self.max_lift_ratio)
+        )
+        self._still_s = self._still_s + self.dt_s if still else 0.0
+        self.landed = self._still_s >= self.hold_s
+        return self.landed
+
+
+class _Hysteresis:
+    """True once its condition has held ``delay_s``, false as soon as it fails (PX4's
+    systemlib::Hysteresis as its land detector sets it up)."""
+
+    __slots__ = ("state", "delay_s", "_since_s")
+
+    def __init__(self, delay_s: float) -> None:
+        self.delay_s = delay_s
+        self.reset(False)
+
+    def reset(self, state: bool) -> None:
+        self.state = state
+        self._since_s = NAN
+
+    def update(self, condition: bool, now_s: float) -> None:
+        if not condition:
+            self.state = False
+            self._since_s = NAN
+        elif not self.state:
+            if self._since_s != self._since_s:  # NaN: the condition begins now
+                self._since_s = now_s
+            self.state = now_s - self._since_s >= self.delay_s - 1e-9  # steps of 1/126 s: 42 = 1/3 s
+
+
+class Px4LandDetector:
+    """PX4's multicopter land detector (LNDMC_*), in climb-rate-controlled flight (every mode
+    the SITL flies). Three stages, each true once its condition held LNDMC_TRIG_TIME / 3, false
+    as soon as it fails, judged (as PX4 does) with the stages of the previous step:
+
+    1. ground contact: no vertical movement (|vz| <= LNDMC_Z_VEL_MAX, 2.5x once maybe landed),
+       no horizontal movement (<= LNDMC_XY_VEL_MAX) and, until maybe landed, a commanded descent
+       (the setpoint's vz) of at least 1.1 x LNDMC_Z_VEL_MAX: the velocity loop pushing down;
+    2. maybe landed: ground contact, low thrust (lift asked < 0.95 weight) and roll/pitch rates
+       <= LNDMC_ROT_MAX (2.5x once maybe landed);
+    3. landed: maybe landed.
+
+    Disarmed, every condition holds. It sees what PX4's estimator sees, not ``on_ground``: told
+    to descend slower than 1.1 x LNDMC_Z_VEL_MAX, a vehicle sits on the ground armed and never
+    lands, as real PX4 does. Runs every FDM step: plain floats, no allocations.
+    """
+
+    def __init__(self, cfg: AutopilotConfig) -> None:
+        self._contact = _Hysteresis(0.0)
+        self._maybe = _Hysteresis(0.0)
+        self._landed = _Hysteresis(0.0)
+        self.configure(cfg)
+
+    def configure(self, cfg: AutopilotConfig) -> None:
+        """New LNDMC_* values (a parameter changed); the stages keep their state."""
+        self._z_max = cfg.land_z_vel_max_m_s
+        self._descent_min = 1.1 * cfg.land_z_vel_max_m_s
+        self._xy_max2 = cfg.land_xy_vel_max_m_s**2
+        self._rot_max2 = math.radians(cfg.land_rot_max_deg_s) ** 2
+        stage_s = cfg.land_trigger_time_s / 3.0
+        self._contact.delay_s = self._maybe.delay_s = self._landed.delay_s = stage_s
+
+    def reset(self, landed: bool) -> None:
+        """Every stage at once: landed (boot, on the ground) or flying (an episode's start)."""
+        self._contact.reset(landed)
+        self._maybe.reset(landed)
+        self._landed.reset(landed)
+
+    @property
+    def ground_contact(self) -> bool:
+        return self._contact.state
+
+    @property
+    def maybe_landed(self) -> bool:
+        return self._maybe.state
+
+    @property
+    def landed(self) -> bool:
+        return self._landed.state
+
+    def update(self, state: VehicleState, descent_sp_m_s: float, lift_ratio: float, armed: bool) -> bool:
+        """Feed one step; ``descent_sp_m_s`` is the setpoint's vz (down positive, NaN: none),
+        ``lift_ratio`` :attr:`FlightController.lift_ratio`. Returns :attr:`landed`."""
+        contact = not armed or self._ground_contact(state, descent_sp_m_s)
+        maybe = not armed or self._maybe_landed(state, lift_ratio)
+        landed = not armed or self._maybe.state
+        now_s = state.time_s
+        self._contact.update(contact, now_s)
+        self._maybe.update(maybe, now_s)
+        self._landed.update(landed, now_s)
+        return self._landed.state
+
+    def _ground_contact(self, state: VehicleState, descent_sp_m_s: float) -> bool:
+        vn, ve, vd = state.velocity_ned_m_s
+        widened = self._maybe.state
+        z_max = self._z_max * LANDED_WIDENING if widened else self._z_max
+        if vd > z_max or vd < -z_max or vn * vn + ve * ve > self._xy_max2:
+            return False
+        # NaN (no velocity setpoint, e.g. a position alone) is no commanded descent
+        return widened or self._landed.state or descent_sp_m_s >= self._descent_min
+
+    def _maybe_landed(self, state: VehicleState, lift_ratio: float) -> bool:
+        if not self._contact.state or lift_ratio >= LOW_LIFT_RATIO:
+            return False
+        p, q, _ = state.rates_frd_rad_s
+        rot2 = self._rot_max2 * (LANDED_WIDENING * LANDED_WIDENING) if self._maybe.state else self._rot_max2
+        return p * p + q * q <= rot2
