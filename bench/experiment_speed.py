@@ -74,7 +74,7 @@ PROFILED = {  # label: (file, function) whose cumulative time is reported per co
     "episode starts (landing_lane.py begin)": ("landing_lane.py", "begin"),
     "telemetry after a frame (direct_sitl.py _fold)": ("direct_sitl.py", "_fold"),
     "policy forward (ensemble.py disagreement)": ("ensemble.py", "disagreement"),
-    "setpoints (batched_eval.py _setpoints)": ("batched_eval.py", "_setpoints"),
+    "setpoints (setpoint_rows.py setpoints)": ("setpoint_rows.py", "setpoints"),
     "setpoint to the vehicle (landing_lane.py velocity)": ("landing_lane.py", "velocity"),
 }
 

@@ -4,6 +4,7 @@ what it owns. Read from the source with ``ast``, so lazy imports inside function
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -90,6 +91,61 @@ def test_lower_layers_import_nothing_above_them(top: str, forbidden: tuple[str, 
     assert {m: t for m, t in bad.items() if t} == {}
 
 
+LAYERS: tuple[tuple[str, ...], ...] = (
+    # top to bottom: a package imports only from the layers below its own (README's order)
+    ("entry",),
+    ("cli",),
+    ("console",),
+    ("experiment",),
+    ("rl",),
+    ("inprocess",),
+    ("app",),
+    ("pictures",),
+    ("control", "testing"),
+    ("inputs", "learning"),
+    ("commands", "vision"),
+    ("link",),
+    ("config", "run_folder", "simulator", "statistics"),
+    ("errors",),
+)
+EPISODE_CORE = ("companion.control.outcome", "companion.control.setpoint_rows")
+"""The episode core: one rule for how an episode ends and is scored, one setpoint arithmetic;
+the drivers (the session in companion.control.session, the env, the batched env, the batched
+evaluation) sit above it."""
+
+
+def _layer(module: str) -> int | None:
+    parts = module.split(".")
+    if parts[0] != "companion" or len(parts) == 1:
+        return None  # the root package: below everything
+    return next(i for i, layer in enumerate(LAYERS) if parts[1] in layer)
+
+
+def test_every_companion_package_has_a_layer() -> None:
+    packages = {m.split(".")[1] for m in import_graph() if m.startswith("companion.")}
+    assert packages == {name for layer in LAYERS for name in layer}
+
+
+def test_packages_import_only_from_the_layers_below_their_own() -> None:
+    upward = sorted(f"{m} -> {t}" for m, targets in import_graph().items() for t in targets
+                    if (mine := _layer(m)) is not None and (theirs := _layer(t)) is not None
+                    and theirs <= mine and m.split(".")[1] != t.split(".")[1])
+    assert upward == []
+
+
+def test_the_episode_core_sits_below_every_driver() -> None:
+    graph = import_graph()
+    for core in EPISODE_CORE:
+        reach, todo = set(), [core]
+        while todo:
+            for t in graph[todo.pop()] - reach:
+                reach.add(t)
+                todo.append(t)
+        drivers = {"companion.control.session", "companion.rl.gym_env", "companion.rl.batched_env",
+                   "companion.experiment.batched_eval", "companion.app", "companion.inprocess"}
+        assert reach & drivers == set(), core
+
+
 def test_every_package_says_what_it_owns() -> None:
     missing = [str(p.relative_to(REPO)) for top in TOP_PACKAGES for p in (REPO / top).rglob("__init__.py")
                if not ast.get_docstring(ast.parse(p.read_text()))]
@@ -103,3 +159,16 @@ def test_the_image_copies_every_package_it_installs() -> None:
     for top in TOP_PACKAGES:
         assert f'"{top}*"' in pyproject
         assert f"COPY {top} ./{top}" in dockerfile
+
+
+def test_the_readme_stays_short_and_its_links_resolve() -> None:
+    """A newcomer's page (at most 8 KB; results live in docs/results.md): every relative link of
+    it and of docs/*.md names a file that exists."""
+    readme = REPO / "README.md"
+    assert readme.stat().st_size <= 8 * 1024
+    broken = []
+    for page in [readme, *sorted((REPO / "docs").glob("*.md"))]:
+        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", page.read_text()):
+            if "://" not in target and not target.startswith("mailto:") and not (page.parent / target).exists():
+                broken.append(f"{page.relative_to(REPO)} -> {target}")
+    assert broken == []

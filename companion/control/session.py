@@ -16,6 +16,7 @@ import contextlib
 import itertools
 import logging
 import math
+import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -26,6 +27,7 @@ import numpy as np
 
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
+from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
 from companion.control.freshness import FreshnessGate
@@ -68,6 +70,15 @@ def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate
     if lockstep:
         return step >= max_steps
     return elapsed_ms >= 1000.0 * max_steps / control_rate_hz or step >= 20 * max_steps
+
+
+@dataclass(frozen=True)
+class _Evidence:
+    """Why the companion counts the vehicle as standing: the landed state (no note), or its own
+    evidence (the record's note, and the log's longer message)."""
+
+    note: str = ""
+    message: str = ""
 
 
 class PolicyRunner(Protocol):
@@ -307,14 +318,20 @@ class EpisodeRunner:
         echo = self._frame_ms if self.p.lockstep and self._frame_ms >= 0 else None
         self.p.link.send_velocity_body(sp, echo_time_boot_ms=echo)
 
-    def _recover_link(self) -> VehicleSnapshot | None:
-        """Link lost: stop streaming, warn, wait for it to come back; None if it does not."""
+    def _recover_link(self) -> VehicleSnapshot | str:
+        """Link lost: stop streaming, warn, wait for it to come back: its first snapshot. Or why
+        the episode ends instead: "link_lost" after ``link_patience_s``, or an end the operator
+        asks for meanwhile (a person pressing Next or Stop is not kept waiting by a dead link)."""
         self._note_gap(LINK_LOST)
         log.warning("link lost: not streaming setpoints; the vehicle's failsafe holds. Waiting %.0f s",
                     self.p.cfg.link_patience_s)
         deadline = time.monotonic() + self.p.cfg.link_patience_s
         while time.monotonic() < deadline:
             time.sleep(0.1)
+            asked = self.p.control.end_requested() if self.p.control is not None else None
+            if asked is not None:
+                log.warning("the operator ended the episode while the link was lost")
+                return asked
             if self.p.link.link_alive():
                 snap = self.p.link.state()
                 if snap is not None:
@@ -322,8 +339,8 @@ class EpisodeRunner:
                     if self.p.lockstep:
                         self._frame_ms = -1
                         snap = self._next_snapshot()
-                    return snap
-        return None
+                    return snap if snap is not None else "link_lost"
+        return "link_lost"
 
     def _ensure_offboard(self, snap: VehicleSnapshot, mode_known: bool = True) -> VehicleSnapshot:
         """Enter the dialect's offboard mode. PX4: stream, then switch (OFFBOARD needs a fresh
@@ -596,38 +613,36 @@ class EpisodeRunner:
     def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
              t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
         """The control loop of one episode: (outcome, policy version, steps, last snapshot)."""
-        outcome, version, steps = "timeout", None, 0
-        for step in range(self.p.cfg.max_steps):
-            if snap is None:
-                snap = self._recover_link()
-                if snap is None:
-                    outcome = "link_lost"
-                    break
+        version, steps = None, 0
+        for step in itertools.count():
+            if snap is None and step < self.p.cfg.max_steps:
+                recovered = self._recover_link()
+                if isinstance(recovered, str):
+                    return recovered, version, steps, None
+                snap = recovered
                 # the vehicle's failsafe may have left offboard meanwhile, and its 1 Hz HEARTBEAT
                 # saying so may not be in yet: ask again whatever the last one said
                 snap = self._ensure_offboard(snap, mode_known=False)
             stop = self._stop_reason(step, snap)
+            if stop == outcome_rule.FENCE:  # its frame was answered with the hold: a step
+                return stop, None, step + 1, snap
             if stop is not None:
-                outcome = stop
-                break
+                return stop, version, steps, snap
+            assert snap is not None  # judged: within the time limit, and recovered above
             steps = step + 1
             try:
                 if self._fresh.admit(snap):
-                    outcome_now, version = self._control_step(episode, step, phase, snap, t0_ms)
+                    version = self._control_step(episode, step, phase, snap, t0_ms)
                 else:
                     self._hold_on_stale(step)
-                    outcome_now = None
             except LinkLost as exc:  # the link fell silent between the telemetry and the setpoint
                 log.warning("step %d: %s", step, exc)
                 snap = None  # the next step recovers the link, as when the telemetry says so
                 continue
-            if outcome_now is not None:
-                outcome = outcome_now
-                break
             if self.p.runner is not None:
                 self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
             snap = self._next_snapshot()
-        return outcome, version, steps, snap
+        raise AssertionError("unreachable")
 
     def _hold_on_stale(self, step: int) -> None:
         """No newer telemetry since the last step: the zero-velocity hold (through the limiter,
@@ -653,11 +668,34 @@ class EpisodeRunner:
             if self.p.control is not None:
                 self.p.control.on_gap(gap)
 
-    def _stop_reason(self, step: int, snap: VehicleSnapshot) -> str | None:
-        """Why the episode ends before this step: a touchdown, or an end asked for from outside."""
-        if step > 0 and self._touched_down(snap):
-            return "touchdown"
+    def _stop_reason(self, step: int, snap: VehicleSnapshot | None, flying: bool = True) -> str | None:
+        """Why the episode ends before this step: the one rule of companion/control/outcome.py
+        (time, touchdown, geofence), then an end asked for from outside. ``flying`` False: the
+        autopilot's precision landing flies (its own time limit, no companion geofence)."""
+        max_steps = self.p.cfg.max_steps if flying else sys.maxsize
+        if snap is None:  # only after the last step (the loop recovers the link before)
+            return outcome_rule.judge_frame(step, max_steps, False, None)
+        evidence = self._touchdown_evidence(snap)
+        standing = self._touchdown is not None and self._touchdown.engaged
+        outcome = outcome_rule.judge_snapshot(step, max_steps, snap, self.p.fence if flying else None, self.home,
+                                              touched_down=evidence is not None, standing=standing)
+        if outcome == outcome_rule.TOUCHDOWN and evidence is not None and evidence.note:
+            log.warning("%s", evidence.message)
+            self._evidence_note = evidence.note
+        elif outcome == outcome_rule.FENCE:
+            self._leave_fence(self.p.fence.check(self.home.relative(snap), standing=standing).reason or "outside")
+        if outcome is not None:
+            return outcome
         return self.p.control.end_requested() if self.p.control is not None else None
+
+    def _leave_fence(self, reason: str) -> None:
+        """Outside the geofence: hold, and the hold mode, before the episode ends."""
+        log.warning("geofence: %s; holding and ending the episode", reason)
+        self._send(HOLD)
+        try:
+            self.p.link.set_mode(self.dialect.hold_mode)
+        except ColError as exc:
+            log.error("could not switch to hold: %s", exc)
 
     def _fly_precland(self, lander: PrecisionLander, snap: VehicleSnapshot | None
                       ) -> tuple[str, int | None, int, VehicleSnapshot | None]:
@@ -670,15 +708,16 @@ class EpisodeRunner:
         started_ms = snap.time_boot_ms if snap is not None else None
         for step in itertools.count():
             if snap is None:
-                snap = self._recover_link()
-                if snap is None:
-                    return "link_lost", None, steps, None
+                recovered = self._recover_link()
+                if isinstance(recovered, str):
+                    return recovered, None, steps, None
+                snap = recovered
             if started_ms is None:
                 started_ms = snap.time_boot_ms
             if precland_time_is_up(step, snap.time_boot_ms - started_ms, self.p.cfg.max_steps,
                                    self.p.cfg.control_rate_hz, self.p.lockstep):
                 break
-            stop = self._stop_reason(step, snap)
+            stop = self._stop_reason(step, snap, flying=False)
             if stop is not None:
                 outcome = stop
                 break
@@ -700,24 +739,23 @@ class EpisodeRunner:
             self.home.update(snap)
         return snap
 
-    def _touched_down(self, snap: VehicleSnapshot) -> bool:
-        """The vehicle's landed state; for a vehicle that reports none, the companion's evidence."""
+    def _touchdown_evidence(self, snap: VehicleSnapshot) -> _Evidence | None:
+        """Whether the vehicle stands: its landed state; for a vehicle that reports none, or whose
+        detector is fed a drifting estimate, the companion's evidence (with a note); None: not."""
         if snap.landed_state == "ON_GROUND":
-            return True
+            return _Evidence()
         assist = self._touchdown
         if snap.landed_state == "UNDEFINED" and assist is not None and assist.standing_long_enough():
-            log.warning("touchdown judged by the companion: the vehicle reports no landed state "
-                        "(EXTENDED_SYS_STATE) and has stood on a surface, asked down, for %.1f s",
-                        assist.cfg.evidence_touchdown_s)
-            self._evidence_note = "touchdown judged by the companion: no landed state, standing"
-            return True
+            return _Evidence("touchdown judged by the companion: no landed state, standing",
+                             "touchdown judged by the companion: the vehicle reports no landed state "
+                             f"(EXTENDED_SYS_STATE) and has stood on a surface, asked down, for "
+                             f"{assist.cfg.evidence_touchdown_s:.1f} s")
         if assist is not None and assist.active and assist.range_contact_long_enough():
-            log.warning("touchdown judged by the companion: its downward rangefinder has read contact for "
-                        "%.1f s while the vehicle, still saying %s, was asked down", assist.cfg.evidence_touchdown_s,
-                        snap.landed_state)
-            self._evidence_note = "touchdown judged by the companion: rangefinder contact (the vehicle still said in air)"
-            return True
-        return False
+            return _Evidence("touchdown judged by the companion: rangefinder contact (the vehicle still said in air)",
+                             "touchdown judged by the companion: its downward rangefinder has read contact for "
+                             f"{assist.cfg.evidence_touchdown_s:.1f} s while the vehicle, still saying "
+                             f"{snap.landed_state}, was asked down")
+        return None
 
     # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
     def begin(self, seed: int | None) -> VehicleSnapshot:
@@ -739,7 +777,8 @@ class EpisodeRunner:
         return self._next_snapshot()
 
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
-                      t0_ms: int) -> tuple[str | None, int | None]:
+                      t0_ms: int) -> int | None:
+        """One step that flies (judged by _stop_reason before): its policy version."""
         t_start = self._tick_start_s = time.perf_counter()
         try:
             obs = self.p.observer.observe(snap, self.p.lockstep, self.home.relative(snap))
@@ -747,16 +786,7 @@ class EpisodeRunner:
         except ValueError as exc:  # non-finite telemetry: hold this step
             log.warning("step %d: unusable telemetry (%s); holding", step, exc)
             self._send(HOLD)
-            return None, None
-        fence = self.p.fence.check(obs.position_ned_m, standing=self._touchdown is not None and self._touchdown.engaged)
-        if not fence.inside:
-            log.warning("geofence: %s; holding and ending the episode", fence.reason)
-            self._send(HOLD)
-            try:
-                self.p.link.set_mode(self.dialect.hold_mode)
-            except ColError as exc:
-                log.error("could not switch to hold: %s", exc)
-            return "fence", None
+            return None
         self._note_gap(VIDEO_MISSING if obs.frame_missing else None)
         human = self._read_human(phase, obs)
         policy_cmd, version, score = self._policy_command(vector)
@@ -789,7 +819,7 @@ class EpisodeRunner:
                                             human.override_held, human.hold, self.p.observer.last_frame_number))
         if lost is not None:
             raise lost
-        return None, version
+        return version
 
     def _supervised_steps(self, phase: Phase, steps: int) -> int:
         if phase is Phase.AUTONOMOUS:
@@ -799,49 +829,49 @@ class EpisodeRunner:
             return ask.engaged_steps
         return steps
 
-    def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
-                version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
-                notes: list[str]) -> EpisodeRecord:
-        summary = self.arbiter.summary()
-        ask = self._ask_summary
-        success = distance = speed = true_distance = None
+    def _score(self, outcome: str, snap: VehicleSnapshot | None, notes: list[str]) -> outcome_rule.Score:
+        """The one scoring rule (companion/control/outcome.py) on what this vehicle offers: the
+        simulator's truth, else the estimate relative to home (and the autopilot's truth)."""
         if self.p.simulator is not None:
             try:
-                td = self.p.simulator.truth().get("touchdown")
+                touchdown = self.p.simulator.truth().get("touchdown")
             except ColError as exc:
                 notes.append(f"no ground truth: {exc}")
-                td = None
-            if td is not None and outcome == "touchdown":
-                success, distance, speed = bool(td["success"]), float(td["distance_to_pad_m"]), float(td["speed_m_s"])
-            elif outcome != "touchdown":
-                success = False
-        elif snap is not None and outcome == "touchdown":
+                touchdown = None
+            return outcome_rule.score(outcome, simulated=True, touchdown=touchdown)
+        estimate = true_distance = None
+        if snap is not None and outcome == outcome_rule.TOUCHDOWN:
             pad = self.p.cfg.pad_ned_m
             north, east, _ = self.home.relative(snap)
-            distance = math.hypot(north - pad[0], east - pad[1])
+            estimate = math.hypot(north - pad[0], east - pad[1])
             notes.append("touchdown distance estimated from the vehicle's position relative to home"
                          if self.home.origin is not None else
                          "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)")
             true_distance = true_distance_m(snap, (pad[0], pad[1]))
             if self.p.judge_radius_m is not None:
-                success = distance <= self.p.judge_radius_m
                 notes.append("success judged from the vehicle's reported position (the rendered pad is where it puts it)")
-        elif self.p.judge_radius_m is not None and outcome != "touchdown":
-            success = False
+        return outcome_rule.score(outcome, simulated=False, estimated_distance_m=estimate,
+                                  true_distance_m=true_distance, judge_radius_m=self.p.judge_radius_m)
+
+    def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
+                version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
+                notes: list[str]) -> EpisodeRecord:
+        summary = self.arbiter.summary()
+        ask = self._ask_summary
+        result = self._score(outcome, snap, notes)
         durations = summary.durations_s(self.period_s)
         sim_s = ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0
         return EpisodeRecord(
             episode=episode, phase=phase.value, seed=seed, steps=steps,
             human_samples=summary.recorded_steps, interventions=summary.interventions,
             intervention_s=round(sum(durations), 3), intervention_durations_s=tuple(round(d, 3) for d in durations),
-            outcome=outcome, success=success,
-            touchdown_distance_m=None if distance is None else round(distance, 4),
-            touchdown_speed_m_s=None if speed is None else round(speed, 4),
+            outcome=outcome, success=result.success,
+            touchdown_distance_m=result.distance_m, touchdown_speed_m_s=result.speed_m_s,
             policy_version=version, dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
             sim_time_s=round(sim_s, 3), wall_time_s=round(time.monotonic() - wall0, 3), notes=tuple(notes),
             requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
             supervised_steps=self._supervised_steps(phase, steps),
-            true_touchdown_distance_m=None if true_distance is None else round(true_distance, 4),
+            true_touchdown_distance_m=result.true_distance_m,
             ask_threshold=None if self.p.asker is None or not math.isfinite(self.p.asker.threshold)
             else round(self.p.asker.threshold, 8),
         )

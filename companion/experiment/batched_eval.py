@@ -93,11 +93,11 @@ from typing import Any
 import numpy as np
 
 from companion.app import RunOptions
-from companion.commands import CommandMapper, body_velocity
 from companion.config import CompanionConfig
+from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Phase
-from companion.control.safety import SetpointLimiter
 from companion.control.session import EpisodeRecord
+from companion.control.setpoint_rows import SetpointRows
 from companion.errors import ColError, SessionOnly
 from companion.inprocess import one_opencv_thread, sitl_config_for
 from companion.learning.checkpoint import load_checkpoint
@@ -105,11 +105,11 @@ from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import disagreement
 from companion.learning.learner import Learner
 from companion.learning.snapshot import PolicySnapshot
-from companion.link.base import SetpointLimits, VehicleSnapshot
-from companion.rl.batched_env import check_link_limits, detect_pad, pad_rows, telemetry_row
+from companion.link.base import VehicleSnapshot
 from companion.rl.gym_env import DESCENT_THROTTLE
 from companion.rl.landing_lane import LandingLane
 from companion.vision.observation import normalised
+from companion.vision.observation_rows import detect_pad, pad_rows, telemetry_row
 from companion.vision.perception import PadDetector
 from sitl.config import SitlConfig, load_sitl_config
 
@@ -183,8 +183,6 @@ class _Flight:
     steps: int = 0
     """What the record's ``steps`` would be if the episode ended now."""
     version: int | None = None
-    last_setpoint: np.ndarray | None = None
-    """The session limiter's memory: the last setpoint it let through (None: reset)."""
 
 
 def why_not_batched(cfg: CompanionConfig, config_path: Path | None) -> str | None:
@@ -248,10 +246,7 @@ class BatchedEvaluator:
         except BaseException:
             self._stack.close()
             raise
-        self._mapper = CommandMapper(cfg.commands)  # its shaping only: repairs go through each lane's
-        self._limiter = SetpointLimiter(cfg.commands, cfg.safety)  # its clips only: the memory is per flight
-        self._link_limits = SetpointLimits(cfg.link.setpoint_max_speed_m_s, cfg.link.setpoint_max_yaw_rate_rad_s,
-                                           cfg.link.setpoint_max_distance_m)
+        self._setpoint_rows = SetpointRows(cfg, lanes)  # each lane's mapper and limiter; repairs stay per lane
         self._detector = PadDetector(cfg.perception)
         camera = sitl_cfg.camera
         self._image_size = (camera.width_px, camera.height_px)
@@ -293,14 +288,20 @@ class BatchedEvaluator:
             raise SessionOnly(f"evaluation episode {episode} (seed {seed}) could not start ({exc}): the "
                               "session records it as an error episode, the batched evaluation does not") from exc
         flights[i] = _Flight(episode, seed, first.time_boot_ms)
+        self._setpoint_rows.forget(i)  # the session's limiter starts afresh
 
     def _step(self, flights: dict[int, _Flight]) -> list[tuple[int, EvalEpisode]]:
-        """One control step of every flight; the episodes that ended, by lane."""
+        """One control step of every flight; the episodes that ended, by lane (judged by the one
+        rule of companion/control/outcome.py before the step, as the session judges)."""
         ended: list[tuple[int, EvalEpisode]] = []
         flying = []
         for i, flight in flights.items():
-            if flight.step > 0 and self._snap(i).landed_state == "ON_GROUND":
-                ended.append((i, self._record(i, flight, "touchdown")))
+            lane = self.lanes[i]
+            outcome = outcome_rule.judge_snapshot(flight.step, self.max_steps, self._snap(i), lane.fence, lane.home)
+            if outcome == outcome_rule.FENCE:
+                ended.append((i, self._fence(i, flight)))
+            elif outcome is not None:
+                ended.append((i, self._record(i, flight, outcome)))
             else:
                 flying.append(i)
         vectors = self._observations(flying)
@@ -313,25 +314,17 @@ class BatchedEvaluator:
                 flight.version = None
                 self.lanes[i].hold()
                 answered.append(i)
-            elif not self.lanes[i].fence.check(self._relative(i)).inside:
-                ended.append((i, self._fence(i, flight)))
             else:
                 acting.append((i, vector))
-        self._act([(flights[i], self.lanes[i], vector) for i, vector in acting])
+        self._act(flights, acting)
         for i in [i for i, _ in acting] + answered:
-            ended += self._advance(i, flights[i])
+            self.lanes[i].next_frame()
+            flights[i].step += 1
         return ended
 
-    def _advance(self, i: int, flight: _Flight) -> list[tuple[int, EvalEpisode]]:
-        """The next frame; after ``max_steps`` steps the episode has timed out."""
-        self.lanes[i].next_frame()
-        flight.step += 1
-        if flight.step >= self.max_steps:
-            return [(i, self._record(i, flight, "timeout"))]
-        return []
-
     def _fence(self, i: int, flight: _Flight) -> EvalEpisode:
-        """Outside the geofence: HOLD and the hold mode, as the session asks them, then the end."""
+        """Outside the geofence: HOLD and the hold mode, as the session asks them, then the end
+        (the hold answers the frame: it counts as a step, as in the session)."""
         lane = self.lanes[i]
         log.warning("geofence: outside at step %d of evaluation episode %d; holding and ending the episode",
                     flight.step, flight.episode)
@@ -339,22 +332,18 @@ class BatchedEvaluator:
         result, why = lane.sitl.request_mode(lane.dialect.hold_mode)
         if result != 0:
             log.error("could not switch to hold: %s", why)
-        flight.version = None
-        return self._record(i, flight, "fence")
+        flight.steps, flight.version = flight.step + 1, None
+        return self._record(i, flight, outcome_rule.FENCE)
 
     def _record(self, i: int, flight: _Flight, outcome: str) -> EvalEpisode:
-        """``EpisodeRunner._record`` with a simulator, for an autonomous episode."""
-        success: bool | None = False
-        distance = speed = None
-        if outcome == "touchdown":
-            td = self.lanes[i].sitl.truth().get("touchdown")
-            success = None if td is None else bool(td["success"])
-            if td is not None:
-                distance, speed = round(float(td["distance_to_pad_m"]), 4), round(float(td["speed_m_s"]), 4)
+        """``EpisodeRunner._record`` with a simulator, for an autonomous episode: the one rule."""
+        touchdown = self.lanes[i].sitl.truth().get("touchdown") if outcome == outcome_rule.TOUCHDOWN else None
+        result = outcome_rule.score(outcome, simulated=True, touchdown=touchdown)
         sim_s = (self._snap(i).time_boot_ms - flight.t0_ms) / 1000.0
         return EvalEpisode(episode=flight.episode, seed=flight.seed, steps=flight.steps, outcome=outcome,
-                           success=success, touchdown_distance_m=distance, touchdown_speed_m_s=speed,
-                           policy_version=flight.version, sim_time_s=round(sim_s, 3))
+                           success=result.success, touchdown_distance_m=result.distance_m,
+                           touchdown_speed_m_s=result.speed_m_s, policy_version=flight.version,
+                           sim_time_s=round(sim_s, 3))
 
     # ----- one step's arithmetic ------------------------------------------------------------------
     def _snap(self, i: int) -> VehicleSnapshot:
@@ -372,31 +361,18 @@ class BatchedEvaluator:
         pads = pad_rows([detect_pad(self._detector, self.lanes[i].sitl.image()) for i in indices], self._image_size)
         return normalised(telemetry, pads)
 
-    def _act(self, acting: Sequence[tuple[_Flight, LandingLane, np.ndarray]]) -> None:
-        """The policy's command for each flight, mapped, limited and sent as the session does."""
+    def _act(self, flights: dict[int, _Flight], acting: Sequence[tuple[int, np.ndarray]]) -> None:
+        """The policy's command for each acting lane, mapped, limited and sent as the session does."""
         if not acting:
             return
         sticks = np.empty((len(acting), 4))
-        for row, (flight, lane, vector) in enumerate(acting):
+        for row, (i, vector) in enumerate(acting):
             action, _ = disagreement(self.snapshot, vector.copy())  # one vector, as the session
-            flight.version = self.snapshot.version
+            flights[i].version = self.snapshot.version
             sticks[row] = action
             if not (np.isfinite(sticks[row]).all() and (np.abs(sticks[row]) <= 1.0).all()):
-                sticks[row] = lane.mapper.command_from_values(action).to_array()  # repaired, counted, logged
-        setpoints = self._setpoints([flight for flight, _, _ in acting], sticks)
-        for (_, lane, _), (forward, right, down, yaw_rate) in zip(acting, setpoints.tolist(), strict=True):
-            lane.velocity((forward, right, down), yaw_rate)
-
-    def _setpoints(self, flights: Sequence[_Flight], sticks: np.ndarray) -> np.ndarray:
-        """``(n, 4)`` (forward, right, down, yaw rate) as each flight's session limiter lets through."""
-        physical, _ = self._mapper.physical(sticks)
-        out = self._limiter.clipped(body_velocity(physical))
-        has = np.array([f.last_setpoint is not None for f in flights])
-        if has.any() and self.period_s > 0:
-            last = np.array([f.last_setpoint for f in flights if f.last_setpoint is not None])
-            out[has] = self._limiter.rate_limited(out[has], last, self.period_s)
-        for flight, row in zip(flights, out, strict=True):
-            flight.last_setpoint = row.copy()
-        check_link_limits(self._link_limits, out)
-        return out
-
+                sticks[row] = self.lanes[i].mapper.command_from_values(action).to_array()  # repaired, counted, logged
+        lanes = [i for i, _ in acting]
+        setpoints = self._setpoint_rows.setpoints(sticks, lanes)
+        for i, (forward, right, down, yaw_rate) in zip(lanes, setpoints.tolist(), strict=True):
+            self.lanes[i].velocity((forward, right, down), yaw_rate)

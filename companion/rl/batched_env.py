@@ -11,9 +11,9 @@ which rotates it by its heading now; the server runs the next frame (12 FDM step
 the autopilot cascade, the streams that are due, the camera image with its latency and pixel
 noise, the SYSTEM_TIME marker); the link folds the messages into a snapshot; the session moves
 its home frame; the observer detects the pad in the frame stamped with the marker's time and
-builds the 15 values; the env ends the episode on the landed state ON_GROUND ("touchdown") or
-outside the geofence ("fence"), or truncates it at ``max_steps``; the reward is 1 for a
-touchdown the SITL judges successful.
+builds the 15 values; the env judges the frame and scores the episode by the one rule of
+:mod:`companion.control.outcome` (the time limit, the landed state ON_GROUND, the geofence; the
+reward is 1 for a touchdown the SITL judges successful).
 
 :class:`BatchedLandingEnv` does the same arithmetic without the objects that carry it there. For
 each env a :class:`~companion.rl.landing_lane.LandingLane` holds the SITL's own vehicle, scheduler
@@ -63,34 +63,26 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from companion.app import RunOptions
-from companion.commands import CommandMapper, body_velocity
 from companion.config import CompanionConfig
-from companion.control.safety import SetpointLimiter
+from companion.control import outcome as outcome_rule
+from companion.control.setpoint_rows import SetpointRows
 from companion.errors import ColError, ConfigError
 from companion.inprocess import one_opencv_thread, sitl_config_for
-from companion.link.base import SetpointLimits, VehicleSnapshot
-from companion.link.setpoints import VelocitySetpoint
+from companion.link.base import VehicleSnapshot
 from companion.rl.grouped_vec_env import GroupedSubprocVecEnv, group_sizes
-from companion.rl.gym_env import ACTION_AXES, DESCENT_THROTTLE, observation_space, stick_rows
-from companion.rl.landing_lane import LandingLane
-from companion.vision.observation import (
-    PAD_NOT_VISIBLE,
-    normalised,
-    pad_features,
-    wrap_angle_rad,
+from companion.rl.gym_env import (
+    ACTION_AXES,
+    DESCENT_THROTTLE,
+    observation_space,
+    outcome_info,
+    stick_rows,
 )
+from companion.rl.landing_lane import LandingLane
+from companion.vision.observation import normalised
+from companion.vision.observation_rows import detect_pad, pad_rows, telemetry_row
 from companion.vision.perception import PadDetection, PadDetector
 
 log = logging.getLogger(__name__)
-
-
-def check_link_limits(limits: SetpointLimits, setpoints: np.ndarray) -> None:
-    """The link's last line of defence over rows of setpoints, with the link's own error
-    (ValueError, as the session's link raises for a config whose commands exceed it)."""
-    too_fast = np.abs(setpoints[:, :3]).max(axis=1) > limits.max_speed_m_s
-    too_fast |= np.abs(setpoints[:, 3]) > limits.max_yaw_rate_rad_s
-    for i in np.flatnonzero(too_fast):
-        limits.check_velocity(VelocitySetpoint(*(float(v) for v in setpoints[i])))
 
 
 class BatchedLandingEnv(VecEnv):
@@ -113,14 +105,9 @@ class BatchedLandingEnv(VecEnv):
         except BaseException:
             self._stack.close()
             raise
-        self._mapper = CommandMapper(cfg.commands)  # its shaping only (no state): counts stay per env
-        self._limiter = SetpointLimiter(cfg.commands, cfg.safety)  # its clips only: the state is below
-        self._link_limits = SetpointLimits(cfg.link.setpoint_max_speed_m_s, cfg.link.setpoint_max_yaw_rate_rad_s,
-                                           cfg.link.setpoint_max_distance_m)
+        self._setpoint_rows = SetpointRows(cfg, n_envs)  # each env's mapper and limiter, row by row
         self._detector = PadDetector(cfg.perception)
         self._image_size = (self.lanes[0].sitl.cfg.camera.width_px, self.lanes[0].sitl.cfg.camera.height_px)
-        self._last_sp = np.zeros((n_envs, 4))  # each env's limiter: the last setpoint let through
-        self._has_last = np.zeros(n_envs, dtype=bool)
         self._sticks = np.zeros((n_envs, 4))
         self.closed = False
         action_space = gym.spaces.Box(-1.0, 1.0, (action_dims,), dtype=np.float32)
@@ -144,18 +131,18 @@ class BatchedLandingEnv(VecEnv):
         self._sticks = self._repaired(stick_rows(self._action_rows(actions), self.descent_throttle))
 
     def step_wait(self) -> VecEnvStepReturn:
-        setpoints = self._setpoints(self._sticks)
+        setpoints = self._setpoint_rows.setpoints(self._sticks)
         snaps = [self._fly(lane, sp) for lane, sp in zip(self.lanes, setpoints.tolist(), strict=True)]
         obs = self._observe(list(range(self.num_envs)))
         rewards = np.zeros(self.num_envs, dtype=np.float32)
         dones = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = []
         for i, (lane, snap) in enumerate(zip(self.lanes, snaps, strict=True)):
-            outcome = lane.outcome(snap)
-            truncated = outcome is None and lane.steps >= lane.max_steps
-            info = lane.info("timeout" if truncated else outcome)
-            rewards[i], dones[i] = 1.0 if info["success"] else 0.0, outcome is not None or truncated
-            info["TimeLimit.truncated"] = truncated
+            outcome = outcome_rule.judge_snapshot(lane.steps, lane.max_steps, snap, lane.fence, lane.home)
+            touchdown = lane.ground_truth().get("touchdown") if outcome == outcome_rule.TOUCHDOWN else None
+            info, rewards[i] = outcome_info(lane.seed, lane.steps, outcome, touchdown)
+            dones[i] = outcome is not None
+            info["TimeLimit.truncated"] = outcome == outcome_rule.TIMEOUT
             infos.append(info)
         self._reset_done(obs, dones, infos)
         return obs, rewards, dones, infos
@@ -199,17 +186,6 @@ class BatchedLandingEnv(VecEnv):
             sticks[i] = self.lanes[i].mapper.command_from_values(sticks[i]).to_array()
         return sticks
 
-    def _setpoints(self, sticks: np.ndarray) -> np.ndarray:
-        """``(n_envs, 4)`` (forward, right, down, yaw rate) as each env's session would send them."""
-        physical, _ = self._mapper.physical(sticks)
-        out = self._limiter.clipped(body_velocity(physical))
-        has = self._has_last
-        if has.any() and self.period_s > 0:
-            out[has] = self._limiter.rate_limited(out[has], self._last_sp[has], self.period_s)
-        self._last_sp, self._has_last = out.copy(), np.ones(self.num_envs, dtype=bool)
-        check_link_limits(self._link_limits, out)
-        return out
-
     @staticmethod
     def _fly(lane: LandingLane, setpoint: list[float]) -> VehicleSnapshot:
         """Send one env's setpoint and run its next frame."""
@@ -226,7 +202,7 @@ class BatchedLandingEnv(VecEnv):
             seeding.np_random(seed)  # the same check of the seed as gymnasium's Env.reset
         start = lane.next_seed if seed is None else int(seed)
         lane.next_seed, lane.seed, lane.steps = start + 1, start, 0
-        self._has_last[i] = False  # the session's limiter starts afresh
+        self._setpoint_rows.forget(i)  # the session's limiter starts afresh
         lane.begin(start)
         return {"seed": start}
 
@@ -258,40 +234,6 @@ class BatchedLandingEnv(VecEnv):
 
     def _detect(self, lane: LandingLane) -> PadDetection | None:
         return detect_pad(self._detector, lane.sitl.image())
-
-
-def detect_pad(detector: PadDetector, image: np.ndarray | None) -> PadDetection | None:
-    """The observer's detection: None without a camera image, or for a corrupt one."""
-    if image is None:
-        return None
-    try:
-        return detector.detect(image)
-    except ValueError as exc:
-        log.warning("camera frame unusable: %s (pad counted as not visible)", exc)
-        return None
-
-
-def telemetry_row(snap: VehicleSnapshot | None,
-                  position_ned_m: tuple[float, float, float] | None = None) -> tuple[float, ...]:
-    """The 12 telemetry values of the vector, raw, in order (yaw wrapped), as ``Observation``;
-    ``position_ned_m`` replaces the snapshot's position as ``Observer.observe``'s does (the
-    session passes the position relative to home)."""
-    assert snap is not None  # a lane is connected before it is observed
-    roll, pitch, yaw = snap.attitude_rad
-    position = snap.position_ned_m if position_ned_m is None else position_ned_m
-    return (*position, roll, pitch, wrap_angle_rad(yaw), *snap.velocity_ned_m_s, *snap.rates_frd_rad_s)
-
-
-def pad_rows(detections: Sequence[PadDetection | None], image_size_px: tuple[int, int]) -> np.ndarray:
-    """The pad's three entries of the vector for each detection (None: not visible), ``(n, 3)``:
-    :func:`~companion.vision.observation.pad_features` on the stack of the visible ones."""
-    pads = np.tile(np.array(PAD_NOT_VISIBLE), (len(detections), 1))
-    seen = [(row, pad) for row, pad in enumerate(detections) if pad is not None]
-    if seen:
-        rows = [row for row, _ in seen]
-        u, v, r = (np.array([getattr(pad, name) for _, pad in seen]) for name in ("u_px", "v_px", "radius_px"))
-        pads[rows] = np.column_stack(pad_features(u, v, r, image_size_px))
-    return pads
 
 
 def _check(n_envs: int, action_dims: int, descent_throttle: float, cfg: CompanionConfig) -> None:

@@ -36,6 +36,7 @@ from companion.app import (
 )
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
+from companion.control import outcome as outcome_rule
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import ColError, ConfigError, LinkError
@@ -188,14 +189,14 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         if snap is None:  # no frame in time (a starved SITL): cut the episode short, not a failure
             log.warning("step %d: no frame from the SITL in time; truncating the episode", self._steps)
             self._done = True
-            return self._last_obs.copy(), 0.0, False, True, self._info("link_lost")
+            return self._last_obs.copy(), 0.0, False, True, self._info("link_lost")[0]
         obs = self._observe(snap)
-        outcome = self._outcome(snap)
-        terminated = outcome is not None
-        truncated = not terminated and self._steps >= self.max_steps
-        self._done = terminated or truncated
-        info = self._info("timeout" if truncated else outcome)
-        return obs, 1.0 if info["success"] else 0.0, terminated, truncated, info
+        runner = self._runner
+        outcome = outcome_rule.judge_snapshot(self._steps, self.max_steps, snap, runner.p.fence, runner.home)
+        self._done = outcome is not None
+        info, reward = self._info(outcome)
+        terminated = outcome in (outcome_rule.TOUCHDOWN, outcome_rule.FENCE)
+        return obs, reward, terminated, outcome == outcome_rule.TIMEOUT, info
 
     def ground_truth(self) -> dict[str, Any]:
         """The SITL's truth (vehicle and pad NED, touchdown): for tests and diagnostics; the
@@ -229,21 +230,16 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._last_obs = vector
         return vector.copy()
 
-    def _outcome(self, snap: VehicleSnapshot) -> str | None:
-        """"touchdown", "fence" (left the geofence: a failure) or None (still flying)."""
-        if snap.landed_state == "ON_GROUND":
-            return "touchdown"
-        if not self._runner.p.fence.check(self._runner.home.relative(snap)).inside:
-            return "fence"
-        return None
+    def _info(self, outcome: str | None) -> tuple[dict[str, Any], float]:
+        """What happened, and the reward: scored by the one rule (companion/control/outcome.py)
+        on the SITL's ground truth once the episode has ended."""
+        touchdown = self._simulator.truth().get("touchdown") if outcome == outcome_rule.TOUCHDOWN else None
+        return outcome_info(self._seed, self._steps, outcome, touchdown)
 
-    def _info(self, outcome: str | None) -> dict[str, Any]:
-        """What happened, from the SITL's ground truth once the episode has ended."""
-        info: dict[str, Any] = {"seed": self._seed, "steps": self._steps, "outcome": outcome, "success": False,
-                                "touchdown_distance_m": None}
-        if outcome == "touchdown":
-            touchdown = self._simulator.truth().get("touchdown")
-            if touchdown is not None:
-                info["success"] = bool(touchdown["success"])
-                info["touchdown_distance_m"] = round(float(touchdown["distance_to_pad_m"]), 4)
-        return info
+
+def outcome_info(seed: int | None, steps: int, outcome: str | None,
+                 touchdown: dict[str, Any] | None) -> tuple[dict[str, Any], float]:
+    """A step's info and reward (the batched env's too): the one scoring rule on the truth."""
+    result = outcome_rule.score(outcome or "", simulated=True, touchdown=touchdown)
+    return ({"seed": seed, "steps": steps, "outcome": outcome, "success": bool(result.success),
+             "touchdown_distance_m": result.distance_m}, result.reward)

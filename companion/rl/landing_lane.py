@@ -134,25 +134,7 @@ class LandingLane:
         self.sitl.command_velocity(self.dialect.body_frame, self.dialect.body_type_mask, forward_right_down_m_s,
                                    yaw_rate_rad_s)
 
-    # ----- outcome -----------------------------------------------------------------------------
-    def outcome(self, snap: VehicleSnapshot) -> str | None:
-        """``LandingEnv._outcome``: "touchdown", "fence" (left the geofence) or None (flying)."""
-        if snap.landed_state == "ON_GROUND":
-            return "touchdown"
-        if not self.fence.check(self.home.relative(snap)).inside:
-            return "fence"
-        return None
-
-    def info(self, outcome: str | None) -> dict[str, Any]:
-        """``LandingEnv._info``: what happened, from the ground truth once the episode ended."""
-        info: dict[str, Any] = {"seed": self.seed, "steps": self.steps, "outcome": outcome, "success": False,
-                                "touchdown_distance_m": None}
-        touchdown = self.sitl.vehicle.touchdown if outcome == "touchdown" else None
-        if touchdown is not None:
-            info["success"] = bool(touchdown.success)
-            info["touchdown_distance_m"] = round(float(touchdown.distance_to_pad_m), 4)
-        return info
-
+    # ----- truth -------------------------------------------------------------------------------
     def ground_truth(self) -> dict[str, Any]:
         """The SITL's truth (vehicle and pad NED, touchdown), as ``LandingEnv.ground_truth``."""
         return self.sitl.truth()

@@ -1,0 +1,104 @@
+"""How an episode ends and how it is scored: the one rule every driver of an episode uses.
+
+The session (:class:`~companion.control.session.EpisodeRunner`), the Gymnasium env, the batched
+env and the batched evaluation all judge each new frame with :func:`judge_frame` and score the
+ended episode with :func:`score`; nothing else decides an outcome or a success. Pure: the drivers
+bring the facts (steps taken, the landed state, the fence's verdict, the simulator's touchdown).
+
+The order of :func:`judge_frame` is the session's: the time limit first (a frame after the last
+step is not looked at), then a touchdown (never on the episode's first frame: the vehicle may
+still stand from the reset), then the geofence, which is not judged on telemetry that is not
+finite (the driver holds that step instead).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from companion.control.safety import FenceStatus, Geofence
+from companion.link.base import VehicleSnapshot
+from companion.link.home import HomeFrame
+
+TOUCHDOWN = "touchdown"
+FENCE = "fence"
+TIMEOUT = "timeout"
+DISTANCE_DECIMALS = 4
+
+
+def judge_frame(steps_taken: int, max_steps: int, touched_down: bool, fence: FenceStatus | None) -> str | None:
+    """Whether the episode ends at this frame, before its step is flown: "timeout", "touchdown",
+    "fence", or None (fly the step). ``fence`` None: the telemetry is unusable, not judged."""
+    if steps_taken >= max_steps:
+        return TIMEOUT
+    if steps_taken > 0 and touched_down:
+        return TOUCHDOWN
+    if fence is not None and not fence.inside:
+        return FENCE
+    return None
+
+
+def telemetry_usable(snap: VehicleSnapshot) -> bool:
+    """Whether the telemetry a step observes (position, attitude, velocity, rates) is finite:
+    else the step holds, and the fence does not judge it."""
+    values = (*snap.position_ned_m, *snap.attitude_rad, *snap.velocity_ned_m_s, *snap.rates_frd_rad_s)
+    return all(math.isfinite(v) for v in values)
+
+
+def judge_snapshot(steps_taken: int, max_steps: int, snap: VehicleSnapshot, fence: Geofence | None,
+                   home: HomeFrame, touched_down: bool | None = None, standing: bool = False) -> str | None:
+    """:func:`judge_frame` on a vehicle's telemetry: its landed state (or the companion's own
+    evidence, ``touched_down``), and ``fence`` on the position relative to ``home`` (None: the
+    companion keeps no fence, e.g. while the autopilot lands by itself). ``standing``: the
+    touchdown assist's evidence that the vehicle stands (the fence's floor is not checked)."""
+    down = snap.landed_state == "ON_GROUND" if touched_down is None else touched_down
+    status = None
+    if fence is not None and telemetry_usable(snap):
+        status = fence.check(home.relative(snap), standing=standing)
+    return judge_frame(steps_taken, max_steps, down, status)
+
+
+@dataclass(frozen=True)
+class Score:
+    """An ended episode's score. ``success`` None: unknown (no truth and no judge)."""
+
+    success: bool | None = None
+    distance_m: float | None = None
+    speed_m_s: float | None = None
+    true_distance_m: float | None = None
+
+    @property
+    def reward(self) -> float:
+        """The paper's sparse reward: 1 for a successful touchdown, else 0."""
+        return 1.0 if self.success else 0.0
+
+
+def _rounded(value: float | None) -> float | None:
+    return None if value is None else round(float(value), DISTANCE_DECIMALS)
+
+
+def score(outcome: str, *, simulated: bool, touchdown: Mapping[str, Any] | None = None,
+          estimated_distance_m: float | None = None, true_distance_m: float | None = None,
+          judge_radius_m: float | None = None) -> Score:
+    """The score of an episode that ended with ``outcome``.
+
+    With a simulator (``simulated``) its ground truth judges: ``touchdown`` is its touchdown
+    record (success, distance to the pad, speed), None if it has none. Without one, the distance
+    is the companion's estimate (``estimated_distance_m``, given for a touchdown), with the true
+    one beside it where the autopilot's SITL sends truth; success is the estimate within
+    ``judge_radius_m`` (None: unknown). Anything but a touchdown fails wherever success is judged.
+    """
+    landed = outcome == TOUCHDOWN
+    if simulated:
+        if not landed:
+            return Score(success=False)
+        if touchdown is None:
+            return Score()
+        return Score(bool(touchdown["success"]), _rounded(touchdown["distance_to_pad_m"]),
+                     _rounded(touchdown["speed_m_s"]))
+    if landed and estimated_distance_m is not None:
+        success = None if judge_radius_m is None else estimated_distance_m <= judge_radius_m
+        return Score(success, _rounded(estimated_distance_m), None, _rounded(true_distance_m))
+    return Score(success=False if judge_radius_m is not None and not landed else None)
