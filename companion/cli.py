@@ -84,7 +84,7 @@ def _fail(exc: Exception) -> typer.Exit:
 def fly(
     connect: ConnectOpt = None,
     simulator: SimulatorOpt = None,
-    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), "render" (our pad world drawn from the vehicle\'s telemetry), colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
     pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none; or precland: the autopilot's own precision landing on the companion's LANDING_TARGET (no learning; needs \\[sitl.camera] pad_marker = \"aruco\", e.g. --config configs/precland.toml)")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
@@ -158,7 +158,7 @@ def eval_cmd(
     checkpoint: Annotated[Path, typer.Argument(help="a checkpoint written by col fly / col demo")],
     connect: ConnectOpt = None,
     simulator: SimulatorOpt = None,
-    camera: Annotated[str | None, typer.Option(help='camera source: "auto", colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
+    camera: Annotated[str | None, typer.Option(help='camera source: "auto", "render" (our pad world drawn from the vehicle\'s telemetry), colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
     episodes: Annotated[int, typer.Option(min=1, help="evaluation episodes")] = 20,
     config: ConfigOpt = None,
     seed: Annotated[int, typer.Option(help="seed of the first start (held-out starts use a different range than training)")] = 100_000,

@@ -516,3 +516,31 @@ def test_after_a_link_loss_offboard_is_asked_again_even_if_the_last_heartbeat_sa
     record = runner.run(0, Phase.AUTONOMOUS, seed=1)
     assert link.modes.count("OFFBOARD") == 2, link.modes
     assert record.steps == 12 and record.outcome == "timeout"
+
+
+class StopWhileLost(GapWatcher):
+    """An operator who presses Stop (or Next) once the link is lost."""
+
+    def __init__(self, link: KinematicLink) -> None:
+        super().__init__()
+        self.link, self.asked_while_lost = link, 0
+
+    def end_requested(self) -> str | None:  # type: ignore[override]
+        if not self.link.alive:
+            self.asked_while_lost += 1
+            return "stopped"
+        return None
+
+
+def test_the_operator_can_end_an_episode_while_the_link_is_lost(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A dead link must not keep a person who pressed Next or Stop waiting for link_patience_s:
+    the episode ends at once, by their request, with the steps it had."""
+    link = KinematicLink((0.0, 0.0, -5.0))
+    link.silent_frames = set(range(6, 1000))  # the vehicle never comes back
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=40)
+    operator = StopWhileLost(link)
+    runner.p.control = operator
+    monkeypatch.setattr("companion.control.session.time.sleep", lambda s: None)
+    record = runner.run(0, Phase.AUTONOMOUS, seed=1)
+    assert record.outcome == "stopped" and operator.asked_while_lost == 1
+    assert record.steps < 10 and "link" in " ".join(record.notes)
