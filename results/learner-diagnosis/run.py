@@ -5,12 +5,16 @@ The 24 policies: CoL@20 and Demo@20 of P1-P4, replicate 0, from the pinned paper
 (results/paper-grid), then of H01-H08, replicate 0, from the human-like grid (results/human-like).
 Steps, from the repository's root, each resumable (a policy whose output exists is skipped):
 
+    python results/learner-diagnosis/run.py code                # the code the diagnosis runs: a clean export
     python results/learner-diagnosis/run.py verify [KEY ...]    # retrain: col experiment --verify --keep
     python results/learner-diagnosis/run.py fly [KEY ...]       # endpoints 1-3 on the identical reruns
     python results/learner-diagnosis/run.py fit [KEY ...]       # endpoint 4 (converged, reseeded; each flown)
     python results/learner-diagnosis/run.py summarise           # summary.json and table.md
 
-Without KEYs a step takes every policy, the paper grid's first. The script re-executes itself
+Without KEYs a step takes every policy, the paper grid's first. Every step after `code` runs
+the library of one commit, exported clean (`git archive`) to runs/learner-diagnosis/code/ (its
+commit in COMMIT there), whatever the working tree holds meanwhile: the export comes first on
+the import path, and the reruns and their SITLs run from inside it. The script re-executes itself
 under the project's numeric profile (colcommon/numeric_env.py), as `col experiment` does, so
 its flights are the experiment's evaluation bit for bit (each flight of a final policy is
 checked against the rerun's own eval_episodes.jsonl).
@@ -27,7 +31,9 @@ from __future__ import annotations
 import sys
 
 if __name__ == "__main__":  # before numpy loads: the numeric profile the grids were made under
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2]))
+    _root = __import__("pathlib").Path(__file__).resolve().parents[2]
+    _code = _root / "runs" / "learner-diagnosis" / "code"
+    sys.path.insert(0, str(_code if (_code / "COMMIT").exists() and sys.argv[1:2] != ["code"] else _root))
     from colcommon.numeric_env import ensure_pinned
 
     _why = ensure_pinned(sys.argv)
@@ -49,6 +55,7 @@ GRIDS = {"paper-grid": ("P1", "P2", "P3", "P4"),
 CONDITIONS = ("col", "demo")
 POLICIES: list[tuple[str, str]] = [(grid, f"{p}-{c}-20-s0") for grid, people in GRIDS.items()
                                    for c in CONDITIONS for p in people]
+CODE = RUNS / "code"
 VERIFY = HERE / "verify.jsonl"
 
 
@@ -68,11 +75,29 @@ def chosen(keys: list[str]) -> list[tuple[str, str]]:
     return [(grid_of(k), k) for k in keys] if keys else list(POLICIES)
 
 
+def export_code() -> None:
+    """runs/learner-diagnosis/code/: the repository at HEAD as committed (``git archive``), so the
+    diagnosis runs one commit's library while the working tree changes."""
+    if (CODE / "COMMIT").exists():
+        print(f"{_rel(CODE)} holds {commit()} already")
+        return
+    shutil.rmtree(CODE, ignore_errors=True)
+    CODE.mkdir(parents=True)
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(CODE)], input=archive, check=True)
+    (CODE / "COMMIT").write_text(head + "\n")
+    print(f"{_rel(CODE)}: {head}")
+
+
 def commit() -> str:
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", "companion", "sitl",
-                            "colcommon", "configs"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    return head + ("+dirty" if dirty else "")
+    """The commit whose library the steps run (the export's)."""
+    return (CODE / "COMMIT").read_text().strip()[:7]
+
+
+def code_env() -> dict[str, str]:
+    """The environment of a subprocess that runs the exported library."""
+    return {**os.environ, "PYTHONPATH": str(CODE)}
 
 
 # ----- step 1: the reruns -----------------------------------------------------------------------
@@ -99,11 +124,11 @@ def verify(keys: list[str]) -> None:
         shutil.rmtree(keep, ignore_errors=True)  # an interrupted rerun starts over
         keep.parent.mkdir(parents=True, exist_ok=True)
         log = RUNS / grid / f"{key}.verify.log"
-        cmd = [_rel(ROOT / ".venv" / "bin" / "col"), "experiment", "--verify", _rel(ROOT / "results" / grid),
-               "--trial", key, "--keep", _rel(keep)]
+        cmd = ["col", "experiment", "--verify", f"results/{grid}", "--trial", key, "--keep", _rel(keep)]
         print(" ".join(cmd), flush=True)
-        with log.open("w") as out:
-            code = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=ROOT).returncode
+        with log.open("w") as out:  # from inside the export: its results/<grid> are the committed ones
+            code = subprocess.run([str(ROOT / ".venv" / "bin" / "col"), *cmd[1:-1], str(keep)], stdout=out,
+                                  stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=CODE, env=code_env()).returncode
         lines = log.read_text().splitlines()
         summary = next((json.loads(line) for line in reversed(lines) if line.startswith("{\"verified\"")), None)
         per_trial = [line for line in lines if line.startswith(f"{key}: ")]
@@ -119,10 +144,15 @@ def verify(keys: list[str]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("step", choices=("verify", "fly", "fit", "summarise"))
+    parser.add_argument("step", choices=("code", "verify", "fly", "fit", "summarise"))
     parser.add_argument("keys", nargs="*", help="policies (e.g. P1-col-20-s0); default: all 24")
     args = parser.parse_args()
-    os.chdir(ROOT)
+    if args.step == "code":
+        export_code()
+        return
+    if not (CODE / "COMMIT").exists():
+        raise SystemExit(f"run the step 'code' first: {_rel(CODE)} is missing")
+    os.chdir(CODE)  # the experiment files and committed grids as the export holds them
     if args.step == "verify":
         verify(args.keys)
     else:
