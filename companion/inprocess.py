@@ -46,6 +46,7 @@ from companion.link.connection import parse_connection
 from companion.link.mavlink_io import MavlinkIO, SnapshotTest
 from companion.link.mavlink_link import MavlinkLink
 from companion.link.wire_copy import wire_copy
+from companion.shared_facts import check_shared_facts
 from companion.simulator import SimulatorClient
 from sitl.config import SitlConfig, load_sitl_config
 from sitl.frames import Frame, decode_frame, encode_frame
@@ -305,10 +306,12 @@ class InProcessSimulator(SimulatorClient):
 
 
 # ====================================================================== wiring
-def sitl_config_for(opts: RunOptions) -> SitlConfig:
+def sitl_config_for(companion: CompanionConfig, opts: RunOptions) -> SitlConfig:
     """The SITL ``start_sitl`` would run for ``opts``: the ``[sitl]`` tables of its config file,
-    with ``opts.seed`` as the world's seed."""
+    with ``opts.seed`` as the world's seed; ConfigError if it disagrees with ``companion`` about
+    the world (companion/shared_facts.py)."""
     cfg = load_sitl_config(opts.config_path)
+    check_shared_facts(companion, cfg)
     if opts.seed is None:
         return cfg
     return cfg.model_copy(update={"world": cfg.world.model_copy(update={"seed": opts.seed})})
@@ -362,7 +365,7 @@ def inprocess_vehicle(cfg: CompanionConfig, opts: RunOptions, lockstep: bool, ru
     _check_inprocess(cfg, opts, lockstep)
     with contextlib.ExitStack() as stack:
         stack.enter_context(one_opencv_thread())
-        sitl = InProcessSitl(sitl_config_for(opts))
+        sitl = InProcessSitl(sitl_config_for(cfg, opts))
         stack.callback(sitl.close)
         link = InProcessLink(cfg.link, sitl)
         stack.callback(link.close)

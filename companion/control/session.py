@@ -12,7 +12,6 @@ after ``max_steps``.
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import logging
 import math
@@ -30,13 +29,15 @@ from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
+from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
 from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapCounter
+from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.sequences import arm_when_ready, leave_safe, streaming, take_off, when_ready
+from companion.control.sequences import leave_safe
 from companion.control.touchdown import TouchdownAssist, touchdown_need
-from companion.errors import ColError, CommandRejected, LinkError, LinkLost
+from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
 from companion.learning.ensemble import EnsembleSnapshot, disagreement
@@ -45,20 +46,13 @@ from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
-from companion.link.truth import ask_for_truth, true_distance_m
+from companion.link.truth import true_distance_m
 from companion.simulator import SimulatorClient
 from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
-HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
-OFFBOARD_ATTEMPTS = 3
-LOCKSTEP_FRAME_PATIENCE_S = 300.0
-"""In lockstep a frame is waited for as long as the link lives (the link raises LinkLost after
-``link_lost_s`` of silence): a frame that came late on a starved machine is the same frame, and
-giving up after 2 s (as this once did) turned a busy machine into a recovery, another flight."""
-RETRY_STREAM_FRAMES = 5  # after a refusal: half a second of setpoints, so a lossy link delivers some  # a refused OFFBOARD (its setpoint lost on the way) is asked again after a fresh setpoint
 
 
 def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate_hz: float, lockstep: bool) -> bool:
@@ -166,28 +160,6 @@ class EpisodeRecord:
         return asdict(self)
 
 
-class Ticker:
-    """Real-time pacing at a fixed period, with the measured periods kept for reports."""
-
-    def __init__(self, rate_hz: float) -> None:
-        self.period_s = 1.0 / rate_hz
-        self._next = time.monotonic()
-        self.periods_s: list[float] = []
-        self._last: float | None = None
-
-    def wait(self) -> None:
-        self._next += self.period_s
-        delay = self._next - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        else:
-            self._next = time.monotonic()  # late: do not try to catch up with a burst
-        now = time.monotonic()
-        if self._last is not None:
-            self.periods_s.append(now - self._last)
-        self._last = now
-
-
 @dataclass
 class EpisodeParts:
     """Everything an episode runner uses; built by the app, replaced by fakes in tests."""
@@ -226,8 +198,6 @@ class EpisodeRunner:
         self.p = parts
         self.arbiter = Arbiter()
         self.period_s = 1.0 / parts.cfg.control_rate_hz
-        self._frame_ms = -1
-        self._ticker: Ticker | None = None
         self._warned_learner = False
         self._tick_start_s: float | None = None
         self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
@@ -238,11 +208,10 @@ class EpisodeRunner:
         self._ask_summary: AskSummary | None = None
         self._touchdown: TouchdownAssist | None = None
         self._evidence_note: str | None = None
-        self._asked_truth = False
-        self._precland_prepared = False  # the lander's boot-time parameters checked (and rebooted for)
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
-        self._warned_home = False
+        self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home)
+        self.starter = EpisodeStart(self.port, parts, lambda: self.dialect)
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
         self._fresh = FreshnessGate()
@@ -293,190 +262,16 @@ class EpisodeRunner:
         """The configured end-of-run state (land or hold), after a run or a failed episode."""
         return leave_safe(self.p.link, self.dialect, self.p.cfg.end_of_run)
 
-    # ----- frames ----------------------------------------------------------------------------
-    def _next_snapshot(self) -> VehicleSnapshot | None:
-        """The next control step's telemetry, or None if the link is gone."""
-        link = self.p.link
-        if self.p.lockstep:
-            try:
-                snap = link.wait_frame(self._frame_ms, timeout_s=LOCKSTEP_FRAME_PATIENCE_S)
-            except LinkLost:  # the link's way of saying "silent": recover like in real time
-                return None
-            if snap is not None:
-                self._frame_ms = int(snap.frame_time_boot_ms or snap.time_boot_ms)
-                self.home.update(snap)
-            return snap
-        if self._ticker is None:
-            self._ticker = Ticker(self.p.cfg.control_rate_hz)
-        self._ticker.wait()
-        snap = link.state() if link.link_alive() else None
-        if snap is not None:
-            self.home.update(snap)
-        return snap
-
-    def _send(self, sp: VelocitySetpoint) -> None:
-        echo = self._frame_ms if self.p.lockstep and self._frame_ms >= 0 else None
-        self.p.link.send_velocity_body(sp, echo_time_boot_ms=echo)
-
+    # ----- the vehicle ------------------------------------------------------------------------
     def _recover_link(self) -> VehicleSnapshot | str:
-        """Link lost: stop streaming, warn, wait for it to come back: its first snapshot. Or why
-        the episode ends instead: "link_lost" after ``link_patience_s``, or an end the operator
-        asks for meanwhile (a person pressing Next or Stop is not kept waiting by a dead link)."""
+        """Link lost: nothing streamed (the vehicle's failsafe holds) until it comes back: its
+        first snapshot; or why the episode ends instead (LinkPort.wait_for_link)."""
         self._note_gap(LINK_LOST)
         log.warning("link lost: not streaming setpoints; the vehicle's failsafe holds. Waiting %.0f s",
                     self.p.cfg.link_patience_s)
-        deadline = time.monotonic() + self.p.cfg.link_patience_s
-        while time.monotonic() < deadline:
-            time.sleep(0.1)
-            asked = self.p.control.end_requested() if self.p.control is not None else None
-            if asked is not None:
-                log.warning("the operator ended the episode while the link was lost")
-                return asked
-            if self.p.link.link_alive():
-                snap = self.p.link.state()
-                if snap is not None:
-                    log.warning("link back: resuming")
-                    if self.p.lockstep:
-                        self._frame_ms = -1
-                        snap = self._next_snapshot()
-                    return snap if snap is not None else "link_lost"
-        return "link_lost"
-
-    def _ensure_offboard(self, snap: VehicleSnapshot, mode_known: bool = True) -> VehicleSnapshot:
-        """Enter the dialect's offboard mode. PX4: stream, then switch (OFFBOARD needs a fresh
-        stream); ArduPilot: switch to GUIDED first (it is armed in it), then stream. The switch is
-        asked before this frame's answer, so in lockstep it lands in a known frame.
-
-        ``mode_known=False`` (just after an episode reset, which leaves the vehicle holding): the
-        mode comes from HEARTBEATs, 1 Hz, and the reset's own may be lost on a lossy link; the
-        last one heard may still say offboard from the episode before. Then ask anyway (asking
-        for the mode the vehicle is in is accepted): otherwise the episode hovers in hold."""
-        d = self.dialect
-        if mode_known and d.is_offboard(snap.mode):
-            return snap
-        if not d.stream_before_offboard:
-            when_ready(lambda: self.p.link.set_mode(d.offboard_mode), f"enter {d.offboard_mode}",
-                       self.p.cfg.arm_timeout_s)
-        if not snap.armed:
-            arm_when_ready(self.p.link, self.p.cfg.arm_timeout_s)
-        if not d.stream_before_offboard:
-            self._send(HOLD)
-            nxt = self._next_snapshot()
-            if nxt is None:
-                raise LinkError(f"lost the vehicle while entering {d.offboard_mode}")
-            return nxt
-        for attempt in range(OFFBOARD_ATTEMPTS):
-            nxt = self._stream_hold(1 if attempt == 0 else RETRY_STREAM_FRAMES, d.offboard_mode)
-            try:
-                with self._hold_stream_while_asking():
-                    self.p.link.set_mode(d.offboard_mode)  # raises CommandRejected with the reason if refused
-                return nxt
-            except CommandRejected:
-                # on a lossy link the one setpoint, or the request (then retried a second later,
-                # when the setpoint is stale), was lost: stream again and ask again, as PX4 wants
-                if attempt == OFFBOARD_ATTEMPTS - 1:
-                    raise
-        raise AssertionError("unreachable")
-
-    def _hold_stream_while_asking(self) -> contextlib.AbstractContextManager[None]:
-        """Real time: the hold setpoint keeps flowing while a mode request waits for its ACK."""
-        if self.p.lockstep:
-            return contextlib.nullcontext()
-        return streaming(self.p.link, HOLD, self.period_s)
-
-    def _stream_hold(self, frames: int, mode: str) -> VehicleSnapshot:
-        """Zero-velocity setpoints for ``frames`` frames (a retry streams longer); the last snapshot."""
-        nxt: VehicleSnapshot | None = None
-        for _ in range(frames):
-            self._send(HOLD)
-            nxt = self._next_snapshot()
-            if nxt is None:
-                raise LinkError(f"lost the vehicle while entering {mode}")
-        assert nxt is not None
-        return nxt
-
-    # ----- episode start -----------------------------------------------------------------------
-    def _start(self, seed: int | None) -> tuple[VehicleSnapshot, list[str]]:
-        notes: list[str] = []
-        self._prepare_precland(notes)
-        if self.p.simulator is not None:
-            reply = self.p.simulator.reset(seed)
-            self._frame_ms = int(reply["time_boot_ms"])
-            snap = self._wait_telemetry_after(self._frame_ms)
-        else:
-            snap = self._fly_to_start(seed)
-            notes.append("started by flying to the start point")
-        return self._ensure_offboard(snap, mode_known=self.p.simulator is None), notes
-
-    def _prepare_precland(self, notes: list[str]) -> None:
-        """Once a run, before its first arming: what the dialect needs at boot (ArduPilot may
-        reboot here). Retried by the next episode if it failed."""
-        if self.p.lander is None or self._precland_prepared:
-            return
-        if self.p.lander.prepare(self.dialect):
-            notes.append(f"precland: rebooted {self.dialect.name} for its boot-time precision landing parameters")
-        self._precland_prepared = True
-
-    def _wait_telemetry_after(self, time_boot_ms: int) -> VehicleSnapshot:
-        for _ in range(100):
-            snap = self._next_snapshot()
-            if snap is None:
-                raise LinkError("no telemetry after the episode reset")
-            if snap.time_boot_ms > time_boot_ms and snap.in_air:
-                return snap
-            if self.p.lockstep:
-                self._send(HOLD)
-        raise LinkError("the vehicle did not report being in the air after the reset")
-
-    def _fly_to_start(self, seed: int | None) -> VehicleSnapshot:
-        """As on a real vehicle: arm, take off, fly to a random start above the pad."""
-        cfg = self.p.cfg
-        rng = np.random.default_rng(seed)
-        pad = np.asarray(cfg.pad_ned_m, dtype=float)
-        start = pad + np.array([*rng.uniform(-cfg.start_xy_range_m, cfg.start_xy_range_m, 2), -cfg.start_height_above_pad_m])
-        snap = self._next_snapshot()
-        if snap is None:
-            raise LinkError("no telemetry: cannot start the episode")
-        if not self._asked_truth:
-            self._asked_truth = True
-            ask_for_truth(self.p.link, snap.autopilot)
-        if not snap.in_air:
-            take_off(self.p.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
-            for _ in range(int(30 * cfg.control_rate_hz)):
-                snap = self._next_snapshot()
-                if snap is not None and snap.in_air and self.home.height(snap) > 0.8 * cfg.takeoff_alt_m:
-                    break
-        if snap is not None:
-            self._check_home(snap)
-        return self._goto(start, snap)
-
-    def _check_home(self, snap: VehicleSnapshot) -> None:
-        if self.home.origin is None and not self._warned_home:
-            self._warned_home = True
-            log.warning("the vehicle sent no HOME_POSITION and was not seen standing: heights are taken "
-                        "from local z = 0, which on PX4 is where the estimator started, not the ground")
-        elif not self._warned_home:
-            self._warned_home = True
-            log.info("home: %s, at %s in the vehicle's frame", self.home.source,
-                     tuple(round(v, 3) for v in self.home.origin or ()))
-
-    def _goto(self, target: np.ndarray, snap: VehicleSnapshot | None) -> VehicleSnapshot:
-        """Fly to ``target`` (relative to home) with position setpoints in the vehicle's frame."""
-        yaw = 0.0
-        for i in range(int(60 * self.p.cfg.control_rate_hz)):
-            if snap is None:
-                raise LinkError("lost the vehicle while flying to the start point")
-            echo = self._frame_ms if self.p.lockstep else None
-            north, east, down = self.home.to_vehicle(target.tolist())
-            self.p.link.send_position_ned(north, east, down, yaw, echo_time_boot_ms=echo)
-            if i % 10 == 2 and not self.dialect.is_offboard(snap.mode):  # again if a failsafe took it
-                self.p.link.set_mode(self.dialect.offboard_mode)
-            err = float(np.linalg.norm(np.asarray(self.home.relative(snap)) - target))
-            speed = float(np.linalg.norm(snap.velocity_ned_m_s))
-            if i > 3 and err < self.p.cfg.start_tolerance_m and speed < 0.3:
-                return snap
-            snap = self._next_snapshot()
-        raise ColError(f"did not reach the start point {target.round(2).tolist()} within 60 s")
+        control = self.p.control
+        return self.port.wait_for_link(self.p.cfg.link_patience_s,
+                                       control.end_requested if control is not None else lambda: None)
 
     # ----- the loop --------------------------------------------------------------------------
     def _policy_command(self, obs_vector: np.ndarray) -> tuple[JoystickCommand, int | None, float]:
@@ -501,7 +296,7 @@ class EpisodeRunner:
         self._reset_touchdown()
         self._begin_asking(episode)
         try:
-            first, notes = self._start(seed)
+            first, notes = self.starter.start(seed)
         except ColError as exc:  # refused reset, no OFFBOARD, lost vehicle: this episode only
             log.error("episode %d could not start: %s", episode, exc)
             self._leave_safe_after_error()
@@ -599,8 +394,7 @@ class EpisodeRunner:
             if self._hold_ned is None:
                 n, e, d = (float(v) for v in snap.position_ned_m)
                 self._hold_ned = (n, e, d, float(snap.attitude_rad[2]))
-            echo = self._frame_ms if self.p.lockstep and self._frame_ms >= 0 else None
-            self.p.link.send_position_ned(*self._hold_ned, echo_time_boot_ms=echo)
+            self.port.send_position(*self._hold_ned)
             return
         if not self._landing:
             self._landing = True
@@ -608,7 +402,7 @@ class EpisodeRunner:
                 self.p.link.land()
             except ColError as exc:
                 log.error("could not command the landing: %s; holding", exc)
-        self._send(HOLD)  # answers the lockstep frame; the vehicle lands in its own mode
+        self.port.send(HOLD)  # answers the lockstep frame; the vehicle lands in its own mode
 
     def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
              t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
@@ -622,7 +416,7 @@ class EpisodeRunner:
                 snap = recovered
                 # the vehicle's failsafe may have left offboard meanwhile, and its 1 Hz HEARTBEAT
                 # saying so may not be in yet: ask again whatever the last one said
-                snap = self._ensure_offboard(snap, mode_known=False)
+                snap = self.starter.ensure_offboard(snap, mode_known=False)
             stop = self._stop_reason(step, snap)
             if stop == outcome_rule.FENCE:  # its frame was answered with the hold: a step
                 return stop, None, step + 1, snap
@@ -641,14 +435,14 @@ class EpisodeRunner:
                 continue
             if self.p.runner is not None:
                 self.p.runner.on_control_step(tick_start_s=self._tick_start_s)
-            snap = self._next_snapshot()
+            snap = self.port.next_snapshot()
         raise AssertionError("unreachable")
 
     def _hold_on_stale(self, step: int) -> None:
         """No newer telemetry since the last step: the zero-velocity hold (through the limiter,
         as a refused input's neutral sticks), nobody asked, nothing recorded."""
         self._note_gap(STALE_TELEMETRY)
-        self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(JoystickCommand.neutral()), self.period_s))
+        self.port.send(self.p.limiter.apply(self.p.mapper.to_setpoint(JoystickCommand.neutral()), self.period_s))
         self.trace.append((step, math.nan, "hold"))
 
     # ----- gaps: steps that are not true samples -----------------------------------------------
@@ -691,7 +485,7 @@ class EpisodeRunner:
     def _leave_fence(self, reason: str) -> None:
         """Outside the geofence: hold, and the hold mode, before the episode ends."""
         log.warning("geofence: %s; holding and ending the episode", reason)
-        self._send(HOLD)
+        self.port.send(HOLD)
         try:
             self.p.link.set_mode(self.dialect.hold_mode)
         except ColError as exc:
@@ -702,7 +496,7 @@ class EpisodeRunner:
         """The autopilot lands on the companion's LANDING_TARGET, one per camera frame; in
         lockstep each frame is still answered (a zero setpoint the vehicle does not fly)."""
         lander.begin()
-        with self._hold_stream_while_asking():  # PX4 leaves OFFBOARD only once the ACK is in
+        with self.starter.hold_stream_while_asking():  # PX4 leaves OFFBOARD only once the ACK is in
             lander.engage(self.dialect)
         outcome, steps = "timeout", 0
         started_ms = snap.time_boot_ms if snap is not None else None
@@ -730,14 +524,11 @@ class EpisodeRunner:
         """Lockstep: answer this frame, then the next. Real time: the newest telemetry (the wait
         for the camera's next frame paced the step; without a camera the control rate does)."""
         if self.p.lockstep:
-            self._send(HOLD)
-            return self._next_snapshot()
+            self.port.send(HOLD)
+            return self.port.next_snapshot()
         if lander.camera is None:
-            return self._next_snapshot()
-        snap = self.p.link.state() if self.p.link.link_alive() else None
-        if snap is not None:
-            self.home.update(snap)
-        return snap
+            return self.port.next_snapshot()
+        return self.port.newest()
 
     def _touchdown_evidence(self, snap: VehicleSnapshot) -> _Evidence | None:
         """Whether the vehicle stands: its landed state; for a vehicle that reports none, or whose
@@ -765,16 +556,16 @@ class EpisodeRunner:
         self.p.human.reset()
         self.p.limiter.reset()
         self._reset_touchdown()
-        return self._start(seed)[0]
+        return self.starter.start(seed)[0]
 
     def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
         """Answer the current frame with ``command`` (None: hold), mapped and limited as in
         :meth:`run`; returns the next frame's telemetry, or None if the link is gone."""
         if command is None:
-            self._send(HOLD)
+            self.port.send(HOLD)
         else:
-            self._send(self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s))
-        return self._next_snapshot()
+            self.port.send(self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s))
+        return self.port.next_snapshot()
 
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
                       t0_ms: int) -> int | None:
@@ -785,7 +576,7 @@ class EpisodeRunner:
             vector = obs.to_vector()
         except ValueError as exc:  # non-finite telemetry: hold this step
             log.warning("step %d: unusable telemetry (%s); holding", step, exc)
-            self._send(HOLD)
+            self.port.send(HOLD)
             return None
         self._note_gap(VIDEO_MISSING if obs.frame_missing else None)
         human = self._read_human(phase, obs)
@@ -805,7 +596,7 @@ class EpisodeRunner:
                 sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
                 if self._touchdown is not None:
                     sp = self._touchdown.apply(sp, snap)
-                self._send(sp)
+                self.port.send(sp)
                 self.trace.append((step, score, decision.source))
         except LinkLost as exc:  # silent since this step's telemetry: still a true sample; then recover
             lost = exc

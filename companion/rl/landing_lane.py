@@ -20,8 +20,8 @@ import numpy as np
 
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
+from companion.control.episode_start import OFFBOARD_ATTEMPTS, RETRY_STREAM_FRAMES, TELEMETRY_FRAMES
 from companion.control.safety import Geofence
-from companion.control.session import OFFBOARD_ATTEMPTS, RETRY_STREAM_FRAMES
 from companion.errors import CommandRejected, ConfigError, LinkError
 from companion.link.base import VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
@@ -33,7 +33,6 @@ from sitl.config import SitlConfig
 
 log = logging.getLogger(__name__)
 START_ATTEMPTS = 3  # LandingEnv._start
-TELEMETRY_FRAMES = 100  # EpisodeRunner._wait_telemetry_after
 ACCEPTED = 0  # MAV_RESULT_ACCEPTED
 
 

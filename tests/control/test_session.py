@@ -324,7 +324,7 @@ def test_an_offboard_refused_because_its_setpoint_was_lost_is_asked_again_after_
     sent_before = len(link.sent)
     record = runner.run(0, Phase.DEMONSTRATION, seed=1)
     assert record.outcome != "error" and link.modes[0] == "OFFBOARD"
-    from companion.control.session import RETRY_STREAM_FRAMES
+    from companion.control.episode_start import RETRY_STREAM_FRAMES
 
     # one setpoint before the first request, a longer stream before the retry
     assert len(link.sent) - sent_before >= 1 + RETRY_STREAM_FRAMES + record.steps
@@ -412,7 +412,7 @@ def test_steps_on_stale_telemetry_hold_and_record_nothing(lockstep: bool, monkey
 
     link.wait_frame = freezing_wait_frame  # type: ignore[method-assign]
     if not lockstep:  # real time: the ticker reads state(); the same freeze through it
-        monkeypatch.setattr("companion.control.session.Ticker.wait", lambda self: None)
+        monkeypatch.setattr("companion.control.link_port.Ticker.wait", lambda self: None)
         link.state = lambda: freezing_wait_frame(0, 0.0)  # type: ignore[method-assign]
     runner, dataset = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=20, lockstep=lockstep)
     watcher = GapWatcher()
