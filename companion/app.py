@@ -219,6 +219,10 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
     if opts.connection:
         yield opts.connection, None
         return
+    from companion.shared_facts import check_shared_facts
+    from sitl.config import load_sitl_config
+
+    check_shared_facts(cfg, load_sitl_config(opts.config_path))  # our SITL flies the same file's world
     port = free_udp_port()
     key_file = cfg.link.signing_key_file  # our SITL gets our key: signing required on both sides
     if key_file:
@@ -239,6 +243,15 @@ def vehicle_connection(cfg: CompanionConfig, opts: RunOptions, lockstep: bool) -
         yield f"udpin:127.0.0.1:{port}", sitl
     finally:
         sitl.stop()
+
+
+def expected_image_size(opts: RunOptions) -> tuple[int, int]:
+    """The image size the observer expects before a first frame: our SITL camera's, set once in
+    ``[sitl.camera]`` (a camera of another kind reports its own with its first frame)."""
+    from companion.shared_facts import image_size_px
+    from sitl.config import load_sitl_config
+
+    return image_size_px(load_sitl_config(opts.config_path))
 
 
 def simulator_client(opts: RunOptions, sitl: SitlProcess | None) -> SimulatorClient | None:
@@ -385,7 +398,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
         attach_human(human, link)
         parts = EpisodeParts(
             link=link,
-            observer=Observer(camera, PadDetector(cfg.perception), (320, 240), cfg.perception.frame_timeout_s),
+            observer=Observer(camera, PadDetector(cfg.perception), expected_image_size(opts), cfg.perception.frame_timeout_s),
             mapper=CommandMapper(cfg.commands), human=human,
             fence=Geofence.from_config(cfg.safety), limiter=SetpointLimiter(cfg.commands, cfg.safety),
             cfg=cfg.session, lockstep=lockstep, simulator=simulator,

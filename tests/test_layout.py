@@ -104,7 +104,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("control", "testing"),
     ("inputs", "learning"),
     ("commands", "vision"),
-    ("link",),
+    ("link", "shared_facts"),
     ("config", "run_folder", "simulator", "statistics"),
     ("errors",),
 )

@@ -219,7 +219,7 @@ def evaluate_batched(cfg: CompanionConfig, checkpoint: Path, first_seed: int, ep
     if reason is not None:
         raise SessionOnly(f"the batched evaluation cannot fly this: {reason}; evaluate through the session")
     snapshot = eval_policy(cfg, checkpoint)
-    sitl_cfg = sitl_config_for(RunOptions(config_path=config_path, seed=first_seed))
+    sitl_cfg = sitl_config_for(cfg, RunOptions(config_path=config_path, seed=first_seed))
     with BatchedEvaluator(cfg, snapshot, sitl_cfg, min(lanes, episodes)) as evaluator:
         records = evaluator.run((k, first_seed + k) for k in range(episodes))
     return BatchedEvaluation(records)

@@ -100,7 +100,7 @@ class BatchedLandingEnv(VecEnv):
         self._stack = contextlib.ExitStack()
         self._stack.enter_context(one_opencv_thread())  # as the in-process SITL renders
         try:
-            sitl_cfg = sitl_config_for(RunOptions(config_path=config_path))
+            sitl_cfg = sitl_config_for(cfg, RunOptions(config_path=config_path))
             self.lanes = [LandingLane(cfg, sitl_cfg, action_dims, descent_throttle) for _ in range(n_envs)]
         except BaseException:
             self._stack.close()

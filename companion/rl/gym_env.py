@@ -30,6 +30,7 @@ from companion.app import (
     NoHuman,
     RunOptions,
     Vehicle,
+    expected_image_size,
     open_run_camera,
     simulator_client,
     vehicle_connection,
@@ -158,7 +159,8 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         link, simulator, camera = vehicle.link, vehicle.simulator, vehicle.camera
         assert simulator is not None  # both openers give the SITL's control surface
         parts = EpisodeParts(
-            link=link, observer=Observer(camera, PadDetector(self.cfg.perception), (320, 240), self.cfg.perception.frame_timeout_s),
+            link=link, observer=Observer(camera, PadDetector(self.cfg.perception), expected_image_size(opts),
+                                        self.cfg.perception.frame_timeout_s),
             mapper=CommandMapper(self.cfg.commands), human=NoHuman(), fence=Geofence.from_config(self.cfg.safety),
             limiter=SetpointLimiter(self.cfg.commands, self.cfg.safety), cfg=self.cfg.session, lockstep=True,
             simulator=simulator,
