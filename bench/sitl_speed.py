@@ -44,7 +44,7 @@ def in_process_factor(sim_s: float) -> float:
     for i in range(steps):
         if i % 12 == 0:
             t = v.time_s
-            v._sp = Setpoint(velocity_ned_m_s=(math.sin(0.5 * t), math.cos(0.5 * t), 0.0), yaw_rate_rad_s=0.1)
+            v.status.setpoint = Setpoint(velocity_ned_m_s=(math.sin(0.5 * t), math.cos(0.5 * t), 0.0), yaw_rate_rad_s=0.1)
         v.step()
     wall = time.perf_counter() - start
     return steps / cfg.clock.fdm_rate_hz / wall

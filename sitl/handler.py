@@ -12,14 +12,26 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.commander import FORCE_DISARM_MAGIC
 from sitl.landing_target import LandingTargetRejected, TargetMeasurement
 from sitl.offboard import TargetFields
 from sitl.params import encode_value
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
-from sitl.vehicle import AUTOPILOT, CAMERA, FORCE_DISARM_MAGIC, Outgoing, SimVehicle
+from sitl.vehicle import SimVehicle
 
 M = mavlink
+AUTOPILOT = 1
+CAMERA = mavlink.MAV_COMP_ID_CAMERA
 NAV_PRECLAND = 23  # PX4's VEHICLE_CMD_NAV_PRECLAND (MAVLink's number of MAV_CMD_NAV_LAND_LOCAL)
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """A message to send: from which of our components, and to whom."""
+
+    component: int
+    message: mavlink.MAVLink_message
+    to_sender_only: bool = True
 
 
 @dataclass(frozen=True)

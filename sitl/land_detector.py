@@ -1,18 +1,29 @@
-"""PX4's land detector (``land_detector``, LNDMC_*) and a miniature one for the cascade's tests.
+"""PX4's land detector (``land_detector``, LNDMC_*), the vehicle's landed state and touchdowns.
 
-Pure logic on the FDM state: whether the vehicle has landed, which the autopilot acts on
-(auto-disarm, mode refusals, take-off handling). Apart from the cascade, as PX4 runs it apart
-from its controllers.
+Whether the vehicle has landed, which the autopilot acts on (auto-disarm, mode refusals,
+take-off handling), is decided by one of two rules (``autopilot.land_detector``): PX4's
+detector (:class:`Px4LandDetector`, pure logic on the FDM state) or plain contact (still on a
+surface). :class:`VehicleLandDetector` applies the rule every FDM step and judges the
+touchdown (ground truth, not the autopilot's). Apart from the cascade, as PX4 runs its land
+detector apart from its controllers; the cascade's tests use the miniature :class:`LandDetector`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.config import AutopilotConfig
+from sitl.control import FlightController, Setpoint, wants_takeoff
 from sitl.dynamics import VehicleState
+from sitl.status import FlightStatus
+from sitl.world import World
 
 NAN = math.nan
+LANDED_SPEED_M_S = 0.5  # slower than this (and then some, see below) on a surface: settled
 LOW_LIFT_RATIO = 0.95  # land detectors' "low thrust": asking for less lift than this x weight
 LANDED_WIDENING = 2.5  # PX4 widens the vertical and rotation limits once maybe landed
 
@@ -20,7 +31,7 @@ LANDED_WIDENING = 2.5  # PX4 widens the vertical and rotation limits once maybe 
 class LandDetector:
     """Landed = touching a surface, nearly still and asking for less lift than the weight,
     continuously for ``hold_s`` (PX4's land detector in miniature; the cascade's tests use it,
-    the vehicle uses :class:`Px4LandDetector` or its contact rule, sitl/vehicle.py)."""
+    the vehicle :class:`VehicleLandDetector`)."""
 
     def __init__(
         self,
@@ -153,3 +164,73 @@ class Px4LandDetector:
         p, q, _ = state.rates_frd_rad_s
         rot2 = self._rot_max2 * (LANDED_WIDENING * LANDED_WIDENING) if self._maybe.state else self._rot_max2
         return p * p + q * q <= rot2
+
+
+class VehicleLandDetector:
+    """The vehicle's landed state, by its rule, and its touchdowns, every FDM step.
+
+    A touchdown is the first settling contact after flight: slower than 0.5 m/s plus twice the
+    last step's descent (a bounce is not settling). With the contact rule that contact is
+    "landed" too; with PX4's rule :class:`Px4LandDetector` decides, fed the setpoint's commanded
+    descent and the thrust asked for.
+    """
+
+    def __init__(self, status: FlightStatus, px4: Px4LandDetector, px4_rule: bool, world: World,
+                 controller: FlightController, say: Callable[[int, str], None]) -> None:
+        self.status = status
+        self.px4 = px4
+        self.px4_rule = px4_rule
+        self.world = world
+        self.controller = controller
+        self.say = say
+        self._airborne = False
+        self._last_down_speed_m_s = 0.0
+
+    def configure(self, cfg: AutopilotConfig) -> None:
+        self.px4.configure(cfg)
+
+    def reset(self, landed: bool) -> None:
+        """Landed (boot: on the ground since time 0) or flying (an episode's start, in the air)."""
+        self.status.landed_since_s = 0.0 if landed else None
+        self._airborne = not landed
+        self._last_down_speed_m_s = 0.0
+        self.px4.reset(landed=landed)
+
+    def idles(self, state: VehicleState, sp: Setpoint, armed: bool) -> bool:
+        """With PX4's rule a landed vehicle idles until a setpoint asks it to take off (PX4's
+        take-off handling)."""
+        return self.px4_rule and armed and self.px4.landed and not wants_takeoff(state, sp)
+
+    def update(self, s: VehicleState) -> None:
+        """After the FDM step to ``s``: the touchdown, and the landed state by the rule."""
+        st = self.status
+        contact_rule = not self.px4_rule
+        vn, ve, vd = s.velocity_ned_m_s
+        speed = math.sqrt(vn * vn + ve * ve + vd * vd)
+        if s.on_ground and speed < LANDED_SPEED_M_S + 2.0 * abs(self._last_down_speed_m_s):
+            if self._airborne and st.touchdown is None:
+                self._judge_touchdown(s, speed)
+            self._airborne = False
+            if contact_rule and st.landed_since_s is None:
+                st.landed_since_s = s.time_s
+        elif not s.on_ground:
+            self._airborne = True
+            if contact_rule:
+                st.landed_since_s = None
+        if not contact_rule:
+            self._detect_px4(s)
+        self._last_down_speed_m_s = vd
+
+    def _judge_touchdown(self, s: VehicleState, speed: float) -> None:
+        td_speed = max(speed, self._last_down_speed_m_s)
+        td = self.world.judge(np.asarray(s.position_ned_m), td_speed, s.time_s)
+        self.status.touchdown = td
+        verdict = "on the pad" if td.success else "off the pad"
+        self.say(mavlink.MAV_SEVERITY_NOTICE, f"Touchdown {verdict}, {td.distance_to_pad_m:.2f} m")
+
+    def _detect_px4(self, s: VehicleState) -> None:
+        st = self.status
+        if not self.px4.update(s, st.setpoint.velocity_ned_m_s[2], self.controller.lift_ratio, st.armed):
+            st.landed_since_s = None
+        elif st.landed_since_s is None:
+            st.landed_since_s = s.time_s

@@ -27,9 +27,11 @@ from sitl.ardupilot_plnd import (
     ApPrecLand,
     ApTargetEstimator,
 )
+from sitl.commander import Commander, Result
 from sitl.config import SitlConfig
 from sitl.control import Setpoint
 from sitl.dynamics import VehicleState
+from sitl.failsafe import Failsafe
 from sitl.landing_target import TargetMeasurement
 from sitl.modes import Mode
 from sitl.offboard import (
@@ -59,7 +61,10 @@ from sitl.params import (
     apply_to_config,
     autopilot_params,
 )
-from sitl.vehicle import SimVehicle, hold_setpoint
+from sitl.precision_landing import PrecisionLanding
+from sitl.setpoints import SetpointStreams
+from sitl.status import hold_setpoint
+from sitl.vehicle import SimVehicle
 
 M = mavlink
 NAN = math.nan
@@ -210,26 +215,283 @@ def copter_setpoint(f: TargetFields, position_ned_m: tuple[float, float, float],
     return Setpoint(position_ned_m=pos, velocity_ned_m_s=vel, yaw_rad=yaw, yaw_rate_rad_s=yaw_rate)
 
 
+class CopterCommander(Commander):
+    """ArduCopter's modes, arming checks, take-off, landing and reboot. Its mode number
+    (:attr:`copter_mode`) picks the PX4-like mode that flies it (:data:`INTERNAL`)."""
+
+    v: CopterVehicle
+
+    def __init__(self, v: CopterVehicle) -> None:
+        super().__init__(v)
+        self.copter_mode = CopterMode.STABILIZE
+        self.guided_velocity = False  # GUIDED flies a velocity target: GUID_TIMEOUT applies
+        self.settle_s = v.cfg.personality.prearm_settle_s  # the EKF has settled from then on
+        self.booting_until_s = -1.0
+        self.next_prearm_report_s = 0.0
+
+    def settling(self) -> bool:
+        """The EKF is still settling after boot: no arming, no GUIDED."""
+        return self.v.time_s < self.settle_s
+
+    def rebooting(self) -> bool:
+        """Silent for REBOOT_S after an accepted reboot, as ArduCopter is while it starts again."""
+        return self.v.time_s < self.booting_until_s
+
+    def rebase_clock(self, shift_s: float) -> None:
+        """The reboot's and the pre-arm checks' times keep their age across an episode reset."""
+        self.booting_until_s -= shift_s
+        self.next_prearm_report_s -= shift_s
+        self.settle_s -= shift_s
+
+    # ----- modes -------------------------------------------------------------------------
+    def set_mode_numbers(self, main: int, sub: int) -> Result:
+        return self.request_copter_mode(main)
+
+    def set_mode_custom(self, custom_mode: int) -> Result:
+        return self.request_copter_mode(custom_mode)
+
+    def request_copter_mode(self, number: int) -> Result:
+        try:
+            mode = CopterMode(number)
+        except ValueError:
+            return M.MAV_RESULT_FAILED, f"Mode change to {number} failed: not supported"
+        if mode is CopterMode.GUIDED and self.settling():
+            return M.MAV_RESULT_FAILED, "Mode change to GUIDED failed: requires position"
+        self.enter_copter(mode)
+        return M.MAV_RESULT_ACCEPTED, ""
+
+    def enter_copter(self, mode: CopterMode) -> None:
+        v, st = self.v, self.status
+        self.copter_mode = mode
+        st.failsafe_since_s = None
+        if mode is CopterMode.GUIDED:  # starts by holding where it is
+            st.mode = Mode.OFFBOARD
+            st.setpoint = hold_setpoint(v.state)
+            self.guided_velocity = False
+        elif mode is CopterMode.LAND:
+            self.enter(Mode.AUTO_LAND)
+            v.precland.start(v.state.attitude_rad[2])
+        elif mode is CopterMode.RTL:
+            self.enter(Mode.AUTO_LOITER)
+            home_n, home_e, _ = v.home_ned_m
+            st.setpoint = Setpoint(position_ned_m=(home_n, home_e, v.state.position_ned_m[2]),
+                                   velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=v.state.attitude_rad[2])
+        else:
+            self.enter(INTERNAL[mode])
+
+    def progress(self, state: VehicleState) -> None:
+        """Take-off done: GUIDED holds the altitude reached; RTL at home: lands."""
+        super().progress(state)
+        st = self.status
+        if self.copter_mode is CopterMode.GUIDED and st.mode is Mode.AUTO_LOITER:
+            st.mode = Mode.OFFBOARD
+        if self.copter_mode is CopterMode.RTL and st.mode is Mode.AUTO_LOITER:
+            n, e, _ = self.v.state.position_ned_m
+            home = self.v.home_ned_m
+            if math.hypot(n - home[0], e - home[1]) < RTL_ARRIVED_M:
+                self.enter(Mode.AUTO_LAND)
+
+    # ----- arming, take-off, land, reboot --------------------------------------------------
+    def arm(self, force: bool = False) -> Result:
+        if self.status.armed:
+            return M.MAV_RESULT_ACCEPTED, ""
+        if not force and self.settling():
+            self.report_prearm()
+            return M.MAV_RESULT_FAILED, ""
+        if not force and self.copter_mode not in ARMABLE:
+            return M.MAV_RESULT_FAILED, "Arm: Mode not armable"
+        return super().arm(force)
+
+    def report_prearm(self) -> None:
+        for reason in PREARM_REASONS:
+            self.v.say(M.MAV_SEVERITY_CRITICAL, reason)
+        self.next_prearm_report_s = self.v.time_s + PREARM_REPORT_S
+
+    def prearm_reports(self, t_s: float) -> None:
+        """Disarmed while the EKF settles: the failing checks again every PREARM_REPORT_S."""
+        if not self.status.armed and self.settling() and t_s >= self.next_prearm_report_s:
+            self.report_prearm()
+
+    def takeoff(self, alt_m: float) -> Result:
+        """MAV_CMD_NAV_TAKEOFF: armed, in GUIDED, on the ground; param7 is metres above home.
+        Refused silently otherwise (COMMAND_ACK FAILED), as ArduCopter does."""
+        st = self.status
+        if not st.armed or self.copter_mode is not CopterMode.GUIDED or not st.landed:
+            return M.MAV_RESULT_FAILED, ""
+        st.touchdown = None  # every flight's touchdown is judged, even without disarming between
+        self.takeoff_alt_m = alt_m if math.isfinite(alt_m) and 0.3 < alt_m < 100 else self.v.params.get("MIS_TAKEOFF_ALT")
+        self.enter(Mode.AUTO_TAKEOFF)
+        return M.MAV_RESULT_ACCEPTED, ""
+
+    def land(self) -> Result:
+        """MAV_CMD_NAV_LAND: ArduCopter switches to LAND."""
+        return self.request_copter_mode(CopterMode.LAND)
+
+    def precision_land(self) -> Result:
+        return M.MAV_RESULT_UNSUPPORTED, ""  # ArduCopter has no such command: LAND does it
+
+    def reboot(self, what: float) -> Result:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN param1 = 1, disarmed: the parameters stay (they are
+        in its eeprom), the boot-time ones take effect, the EKF settles again, STABILIZE."""
+        if not (math.isfinite(what) and int(what) == 1):
+            return M.MAV_RESULT_UNSUPPORTED, ""
+        if self.status.armed:
+            return M.MAV_RESULT_FAILED, "Reboot refused: disarm first"
+        self.booting_until_s = self.v.time_s + REBOOT_S
+        self.settle_s = self.booting_until_s + self.v.cfg.personality.prearm_settle_s
+        self.v.precland.restart()
+        self.enter_copter(CopterMode.STABILIZE)
+        self.status.mode = Mode.POSCTL
+        return M.MAV_RESULT_ACCEPTED, ""
+
+
+class CopterFailsafe(Failsafe):
+    """ArduCopter's: a velocity target not renewed within GUID_TIMEOUT stops the vehicle, which
+    stays in GUIDED; landed in GUIDED it waits on the ground; and the pre-arm reports."""
+
+    commander: CopterCommander
+
+    def check(self, t_s: float) -> None:
+        c, st = self.commander, self.status
+        if c.copter_mode is CopterMode.GUIDED and st.mode is Mode.OFFBOARD and st.landed:
+            st.setpoint = self._ground_idle()  # landed in GUIDED: targets wait for a take-off
+            return
+        if c.copter_mode is CopterMode.GUIDED and st.mode is Mode.OFFBOARD and c.guided_velocity:
+            if t_s - st.last_offboard_s > self.v.params.get("GUID_TIMEOUT"):
+                st.setpoint = hold_setpoint(self.v.state)  # stop, stay in GUIDED
+                c.guided_velocity = False
+        self._sticks_silent(t_s)
+        c.prearm_reports(t_s)
+
+    def _ground_idle(self) -> Setpoint:
+        """On the ground, armed, waiting (ArduCopter's "safe ground handling"): push down."""
+        s = self.v.state
+        n, e, _ = s.position_ned_m
+        return Setpoint(position_ned_m=(n, e, NAN), velocity_ned_m_s=(0.0, 0.0, self.v.params.get("MPC_LAND_SPEED")),
+                        yaw_rad=s.attitude_rad[2])
+
+
+class CopterSetpoints(SetpointStreams):
+    """Targets as ArduCopter reads them (:func:`copter_setpoint`), flown only in GUIDED."""
+
+    v: CopterVehicle
+
+    def offboard(self, f: TargetFields) -> bool:
+        v, st, c = self.v, self.status, self.v.commander
+        s = v.state
+        try:
+            sp = copter_setpoint(f, s.position_ned_m, s.attitude_rad[2], v.params.get("MPC_XY_VEL_MAX"))
+        except SetpointRejected as exc:
+            self.refuse(exc)
+            return False
+        if c.copter_mode is not CopterMode.GUIDED:
+            return False  # ArduCopter ignores targets outside GUIDED
+        st.last_offboard_s = s.time_s
+        st.latest_offboard_sp = sp
+        c.guided_velocity = math.isnan(sp.position_ned_m[0])
+        if st.mode is Mode.OFFBOARD and not st.landed:
+            st.setpoint = sp
+        return True
+
+
+class ArduPilotPrecisionLanding(PrecisionLanding):
+    """ArduCopter's (AC_PrecLand): in LAND, with PLND_ENABLED and the backend PLND_TYPE made at boot."""
+
+    v: CopterVehicle
+
+    def __init__(self, v: CopterVehicle) -> None:
+        super().__init__(v)
+        self.restart()
+
+    def restart(self) -> None:
+        """At boot: ArduCopter makes its precision landing backend from PLND_TYPE now, once (set
+        later, it takes effect at the next reboot; PLND_ENABLED is read live)."""
+        v = self.v
+        self.estimator = ApTargetEstimator(v.param)
+        self.plnd = ApPrecLand(v.param, rangefinder=False)
+        self.backend = isinstance(v.params, CopterParams) and int(v.params.get("PLND_TYPE")) == 1
+
+    def on(self) -> bool:
+        return self.backend and int(self.v.params.get("PLND_ENABLED")) == 1
+
+    def _rangefinder(self) -> bool:
+        return int(self.v.params.get("RNGFND1_TYPE")) != 0
+
+    def _in_land(self) -> bool:
+        return self.v.commander.copter_mode is CopterMode.LAND
+
+    def start(self, yaw_rad: float) -> None:
+        self.plnd.start(self.pose())
+        self.hold_yaw_rad = yaw_rad
+
+    def measure(self, m: TargetMeasurement) -> bool:
+        """Read only with PLND_ENABLED = 1 and PLND_TYPE = 1 (MAVLink); ignored otherwise."""
+        if not self.on():
+            return False
+        height = self.pose().height_agl_m if self._rangefinder() else None
+        used = self.estimator.measure(m, height)
+        self._say_all(self.estimator.events)
+        return used
+
+    def run(self) -> None:
+        """With precision landing on, the estimator keeps its inertial history every step; in
+        LAND, the guidance replaces the vertical landing's setpoint."""
+        if not self.on():
+            return
+        pose = self.pose()
+        self.estimator.update(pose)
+        self._say_all(self.estimator.events)
+        if not self._in_land() or self.status.landed:
+            return
+        self.plnd.rangefinder = self._rangefinder()
+        guidance = self.plnd.update(pose, self.estimator.estimate(pose), self.v.params.get("MPC_LAND_SPEED"))
+        self._say_all(self.plnd.events)
+        self.status.setpoint = self.guidance_setpoint(guidance)
+
+    def phase(self) -> str | None:
+        return self.plnd.state.value if self._in_land() and self.on() else None
+
+    def _say_all(self, texts: list[str]) -> None:
+        for text in texts:
+            self.v.say(M.MAV_SEVERITY_INFO, text)
+        texts.clear()
+
+
 class CopterVehicle(SimVehicle):
     """The SITL vehicle as ArduCopter: GUIDED instead of OFFBOARD, BRAKE as hold, and the rest
-    of the module's docstring. Internally it flies the PX4-like modes of :class:`SimVehicle`."""
+    of the module's docstring. Internally it flies the PX4-like modes of :class:`SimVehicle`,
+    with ArduCopter's parts in place of PX4's."""
 
     sends_frame_marker = False
     default_rates_hz = {M.MAVLINK_MSG_ID_HEARTBEAT: 1.0, M.MAVLINK_MSG_ID_SYS_STATUS: 1.0}
-
-    CLOCK_STAMPS = ("_booting_until_s", "_next_prearm_report_s", "_settle_s")
+    commander: CopterCommander
+    precland: ArduPilotPrecisionLanding
 
     def __init__(self, cfg: SitlConfig) -> None:
-        self.copter_mode = CopterMode.STABILIZE
-        self._guided_velocity = False
         super().__init__(cfg)
         self.params = CopterParams(cfg)
         self.controller.configure(apply_to_config(self.controller.cfg, self.params))
-        self._settle_s = cfg.personality.prearm_settle_s
-        self._booting_until_s = -1.0
-        self._next_prearm_report_s = 0.0
+
+    def _new_commander(self) -> CopterCommander:
+        return CopterCommander(self)
+
+    def _new_failsafe(self) -> CopterFailsafe:
+        return CopterFailsafe(self, self.commander)
+
+    def _new_setpoints(self) -> CopterSetpoints:
+        return CopterSetpoints(self)
+
+    def _new_precland(self) -> ArduPilotPrecisionLanding:
+        return ArduPilotPrecisionLanding(self)
 
     # ----- what the world sees -----------------------------------------------------------
+    @property
+    def copter_mode(self) -> CopterMode:
+        return self.commander.copter_mode
+
+    def request_copter_mode(self, number: int) -> Result:
+        return self.commander.request_copter_mode(number)
+
     def heartbeat_mode(self) -> tuple[int, int]:
         return M.MAV_AUTOPILOT_ARDUPILOTMEGA, int(self.copter_mode)
 
@@ -242,196 +504,10 @@ class CopterVehicle(SimVehicle):
         """ArduCopter's EKF origin is home: heights read 0 on the ground there."""
         return 0.0
 
-    def settling(self) -> bool:
-        """The EKF is still settling after boot: no arming, no GUIDED."""
-        return self.time_s < self._settle_s
-
-    # ----- modes -------------------------------------------------------------------------
-    def set_mode_numbers(self, main: int, sub: int) -> tuple[int, str]:
-        return self.request_copter_mode(main)
-
-    def set_mode_custom(self, custom_mode: int) -> tuple[int, str]:
-        return self.request_copter_mode(custom_mode)
-
-    def request_copter_mode(self, number: int) -> tuple[int, str]:
-        try:
-            mode = CopterMode(number)
-        except ValueError:
-            return M.MAV_RESULT_FAILED, f"Mode change to {number} failed: not supported"
-        if mode is CopterMode.GUIDED and self.settling():
-            return M.MAV_RESULT_FAILED, "Mode change to GUIDED failed: requires position"
-        self._enter(mode)
-        return M.MAV_RESULT_ACCEPTED, ""
-
-    def _enter(self, mode: CopterMode) -> None:
-        self.copter_mode = mode
-        self._failsafe_since_s = None
-        if mode is CopterMode.GUIDED:  # starts by holding where it is
-            self.mode = Mode.OFFBOARD
-            self._sp = hold_setpoint(self.state)
-            self._guided_velocity = False
-        elif mode is CopterMode.LAND:
-            self._set_mode(Mode.AUTO_LAND)
-            self.plnd.start(self.precland_pose())
-            self._hold_yaw_rad = self.state.attitude_rad[2]
-        elif mode is CopterMode.RTL:
-            self._set_mode(Mode.AUTO_LOITER)
-            home_n, home_e, _ = self.home_ned_m
-            self._sp = Setpoint(position_ned_m=(home_n, home_e, self.state.position_ned_m[2]),
-                                velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=self.state.attitude_rad[2])
-        else:
-            self._set_mode(INTERNAL[mode])
-
     def _enter_landed_disarmed(self) -> None:
         super()._enter_landed_disarmed()
-        self.copter_mode = CopterMode.STABILIZE
-        self.mode = Mode.POSCTL
-
-    # ----- arming, take-off, land ----------------------------------------------------------
-    def arm(self, force: bool = False) -> tuple[int, str]:
-        if self.armed:
-            return M.MAV_RESULT_ACCEPTED, ""
-        if not force and self.settling():
-            self._report_prearm()
-            return M.MAV_RESULT_FAILED, ""
-        if not force and self.copter_mode not in ARMABLE:
-            return M.MAV_RESULT_FAILED, "Arm: Mode not armable"
-        return super().arm(force)
-
-    def _report_prearm(self) -> None:
-        for reason in PREARM_REASONS:
-            self.say(M.MAV_SEVERITY_CRITICAL, reason)
-        self._next_prearm_report_s = self.time_s + PREARM_REPORT_S
-
-    def takeoff(self, alt_m: float) -> tuple[int, str]:
-        """MAV_CMD_NAV_TAKEOFF: armed, in GUIDED, on the ground; param7 is metres above home.
-        Refused silently otherwise (COMMAND_ACK FAILED), as ArduCopter does."""
-        if not self.armed or self.copter_mode is not CopterMode.GUIDED or not self.landed:
-            return M.MAV_RESULT_FAILED, ""
-        self.touchdown = None  # every flight's touchdown is judged, even without disarming between
-        self._takeoff_alt_m = alt_m if math.isfinite(alt_m) and 0.3 < alt_m < 100 else self.params.get("MIS_TAKEOFF_ALT")
-        self._set_mode(Mode.AUTO_TAKEOFF)
-        return M.MAV_RESULT_ACCEPTED, ""
-
-    def land(self) -> tuple[int, str]:
-        """MAV_CMD_NAV_LAND: ArduCopter switches to LAND."""
-        return self.request_copter_mode(CopterMode.LAND)
-
-    # ----- precision landing (AC_PrecLand) -------------------------------------------------
-    def _start_precland(self) -> None:
-        """At boot: ArduCopter makes its precision landing backend from PLND_TYPE now, once (set
-        later, it takes effect at the next reboot; PLND_ENABLED is read live)."""
-        self.target_estimator = ApTargetEstimator(self._param)  # type: ignore[assignment]
-        self.plnd = ApPrecLand(self._param, rangefinder=False)
-        self._plnd_backend = isinstance(self.params, CopterParams) and int(self.params.get("PLND_TYPE")) == 1
-
-    def _plnd_on(self) -> bool:
-        return self._plnd_backend and int(self.params.get("PLND_ENABLED")) == 1
-
-    def reboot(self, what: float) -> tuple[int, str]:
-        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN param1 = 1, disarmed: the parameters stay (they are
-        in its eeprom), the boot-time ones take effect, the EKF settles again, STABILIZE."""
-        if not (math.isfinite(what) and int(what) == 1):
-            return M.MAV_RESULT_UNSUPPORTED, ""
-        if self.armed:
-            return M.MAV_RESULT_FAILED, "Reboot refused: disarm first"
-        self._booting_until_s = self.time_s + REBOOT_S
-        self._settle_s = self._booting_until_s + self.cfg.personality.prearm_settle_s
-        self._start_precland()
-        self._enter(CopterMode.STABILIZE)
-        self.mode = Mode.POSCTL
-        return M.MAV_RESULT_ACCEPTED, ""
-
-    def rebooting(self) -> bool:
-        """Silent for REBOOT_S after an accepted reboot, as ArduCopter is while it starts again."""
-        return self.time_s < self._booting_until_s
-
-    def _rangefinder(self) -> bool:
-        return int(self.params.get("RNGFND1_TYPE")) != 0
-
-    def landing_target(self, m: TargetMeasurement) -> bool:
-        """Read only with PLND_ENABLED = 1 and PLND_TYPE = 1 (MAVLink); ignored otherwise."""
-        if not self._plnd_on():
-            return False
-        estimator: ApTargetEstimator = self.target_estimator  # type: ignore[assignment]
-        height = self.precland_pose().height_agl_m if self._rangefinder() else None
-        used = estimator.measure(m, height)
-        self._say_all(estimator.events)
-        return used
-
-    def precision_land(self) -> tuple[int, str]:
-        return M.MAV_RESULT_UNSUPPORTED, ""  # ArduCopter has no such command: LAND does it
-
-    def precision_landing_state(self) -> str | None:
-        return self.plnd.state.value if self.copter_mode is CopterMode.LAND and self._plnd_on() else None
-
-    def _say_all(self, texts: list[str]) -> None:
-        for text in texts:
-            self.say(M.MAV_SEVERITY_INFO, text)
-        texts.clear()
-
-    def _run_precland(self) -> None:
-        """With precision landing on, the estimator keeps its inertial history every step; in
-        LAND, the guidance replaces the vertical landing's setpoint."""
-        if not self._plnd_on():
-            return
-        estimator: ApTargetEstimator = self.target_estimator  # type: ignore[assignment]
-        pose = self.precland_pose()
-        estimator.update(pose)
-        self._say_all(estimator.events)
-        if self.copter_mode is not CopterMode.LAND or self.landed:
-            return
-        self.plnd.rangefinder = self._rangefinder()
-        guidance = self.plnd.update(pose, estimator.estimate(pose), self.params.get("MPC_LAND_SPEED"))
-        self._say_all(self.plnd.events)
-        self._sp = self._guidance_setpoint(guidance)
-
-    # ----- setpoints and failsafes ---------------------------------------------------------
-    def offboard_setpoint(self, f: TargetFields) -> bool:
-        s = self.state
-        try:
-            sp = copter_setpoint(f, s.position_ned_m, s.attitude_rad[2], self.params.get("MPC_XY_VEL_MAX"))
-        except SetpointRejected as exc:
-            self.rejected_setpoints += 1
-            if self.rejected_setpoints in (1, 10, 100) or self.rejected_setpoints % 1000 == 0:
-                self.say(M.MAV_SEVERITY_WARNING, f"Setpoint refused ({self.rejected_setpoints}): {exc}")
-            return False
-        if self.copter_mode is not CopterMode.GUIDED:
-            return False  # ArduCopter ignores targets outside GUIDED
-        self._last_offboard_s = s.time_s
-        self._latest_offboard_sp = sp
-        self._guided_velocity = math.isnan(sp.position_ned_m[0])
-        if self.mode is Mode.OFFBOARD and not self.landed:
-            self._sp = sp
-        return True
-
-    def _check_failsafes(self, t_s: float) -> None:
-        if self.copter_mode is CopterMode.GUIDED and self.mode is Mode.OFFBOARD and self.landed:
-            self._sp = self._ground_idle()  # landed in GUIDED: targets wait for a take-off
-            return
-        if self.copter_mode is CopterMode.GUIDED and self.mode is Mode.OFFBOARD and self._guided_velocity:
-            if t_s - self._last_offboard_s > self.params.get("GUID_TIMEOUT"):
-                self._sp = hold_setpoint(self.state)  # stop, stay in GUIDED
-                self._guided_velocity = False
-        if self.mode is Mode.POSCTL and t_s - self._manual_at_s > 0.5 and not self._sp_is_hold():
-            self._sp = hold_setpoint(self.state)
-        if not self.armed and self.settling() and t_s >= self._next_prearm_report_s:
-            self._report_prearm()
-
-    def _ground_idle(self) -> Setpoint:
-        """On the ground, armed, waiting (ArduCopter's "safe ground handling"): push down."""
-        n, e, _ = self.state.position_ned_m
-        return Setpoint(position_ned_m=(n, e, NAN), velocity_ned_m_s=(0.0, 0.0, self.params.get("MPC_LAND_SPEED")),
-                        yaw_rad=self.state.attitude_rad[2])
-
-    def _progress_mode(self, state: VehicleState) -> None:
-        super()._progress_mode(state)
-        if self.copter_mode is CopterMode.GUIDED and self.mode is Mode.AUTO_LOITER:
-            self.mode = Mode.OFFBOARD  # take-off done: GUIDED holds the altitude reached
-        if self.copter_mode is CopterMode.RTL and self.mode is Mode.AUTO_LOITER:
-            n, e, _ = self.state.position_ned_m
-            if math.hypot(n - self.home_ned_m[0], e - self.home_ned_m[1]) < RTL_ARRIVED_M:
-                self._set_mode(Mode.AUTO_LAND)
+        self.commander.copter_mode = CopterMode.STABILIZE
+        self.status.mode = Mode.POSCTL
 
     def set_param(self, name: str, wire_value: float, kind: int | None = None) -> bool:
         if self.params.set(name, wire_value, kind) is None:
@@ -444,8 +520,8 @@ class CopterVehicle(SimVehicle):
     def reset_episode(self, seed: int | None, start_s: float | None = None) -> np.ndarray:
         """As the PX4 personality: hovering at the start, armed, holding (here: BRAKE)."""
         start = super().reset_episode(seed, start_s)
-        self.copter_mode = CopterMode.BRAKE
-        self.mode = Mode.AUTO_LOITER
+        self.commander.copter_mode = CopterMode.BRAKE
+        self.status.mode = Mode.AUTO_LOITER
         return start
 
 

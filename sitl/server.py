@@ -27,11 +27,11 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, parse_request
 from sitl.exposure import authorised, check_exposure
-from sitl.handler import CameraInfo, MessageHandler
+from sitl.handler import AUTOPILOT, CAMERA, CameraInfo, MessageHandler, Outgoing
 from sitl.personality import make_vehicle
 from sitl.signing import SitlSigning
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
-from sitl.vehicle import AUTOPILOT, CAMERA, FIRST_LOCKSTEP_EPISODE_S, Outgoing, SimVehicle
+from sitl.vehicle import FIRST_LOCKSTEP_EPISODE_S, SimVehicle
 
 if TYPE_CHECKING:
     import numpy as np

@@ -52,6 +52,7 @@ from companion.link.wire_copy import wire_copy
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, truth
 from sitl.frames import Frame, decode_frame, encode_frame
+from sitl.handler import AUTOPILOT
 from sitl.offboard import TargetFields
 from sitl.personality import make_vehicle
 from sitl.server import frame_steps, render_frame
@@ -62,7 +63,7 @@ from sitl.telemetry import (
     home_local,
     local_position_fields,
 )
-from sitl.vehicle import AUTOPILOT, SimVehicle
+from sitl.vehicle import SimVehicle
 
 M = mavlink
 CONNECT_TIMEOUT_S = 30.0  # as LandingEnv's link.connect

@@ -85,11 +85,11 @@ def test_relative_and_body_frames_are_moved_only_where_the_position_is_absolute(
     v.reset_episode(seed=3)
     z0 = v.state.position_ned_m[2]
     v.offboard_setpoint(TargetFields(FRAME_LOCAL_OFFSET_NED, POSITION_ONLY, 0, 0, -1.0, 0, 0, 0, 0, 0))
-    assert v._latest_offboard_sp.position_ned_m[2] == z0 - 1.0  # 1 m above where it is: no offset
+    assert v.status.latest_offboard_sp.position_ned_m[2] == z0 - 1.0  # 1 m above where it is: no offset
     v.offboard_setpoint(TargetFields(FRAME_BODY_NED, POSITION_ONLY, 0, 0, -5.0, 0, 0, 0, 0, 0))
-    assert v._latest_offboard_sp.position_ned_m[2] == -5.0 + 0.7  # from the origin, as LOCAL_NED
+    assert v.status.latest_offboard_sp.position_ned_m[2] == -5.0 + 0.7  # from the origin, as LOCAL_NED
     v.offboard_setpoint(TargetFields(FRAME_BODY_NED, 0x5C7, 0, 0, 0, 0, 0, 0.5, 0, 0))
-    assert v._latest_offboard_sp.velocity_ned_m_s[2] == 0.5  # velocities are not moved
+    assert v.status.latest_offboard_sp.velocity_ned_m_s[2] == 0.5  # velocities are not moved
 
 
 def test_offset_zero_reports_the_truth_exactly() -> None:
@@ -103,7 +103,7 @@ def test_offset_zero_reports_the_truth_exactly() -> None:
     assert home_position(v).z == v.home_ned_m[2]
     target = TargetFields(FRAME_LOCAL_NED, POSITION_ONLY, 1.0, 2.0, -3.0, 0, 0, 0, 0, 0)
     v.offboard_setpoint(target)
-    assert v._latest_offboard_sp.position_ned_m == (1.0, 2.0, -3.0)
+    assert v.status.latest_offboard_sp.position_ned_m == (1.0, 2.0, -3.0)
 
 
 def test_the_ardupilot_personality_has_its_origin_at_home() -> None:

@@ -197,7 +197,7 @@ def test_the_land_parameters_are_served_like_the_others() -> None:
     assert read.message.param_id == "LNDMC_TRIG_TIME" and read.message.param_value == pytest.approx(1.0)
     assert v.set_param("LNDMC_TRIG_TIME", encode_value(99.0, M.MAV_PARAM_TYPE_REAL32))
     assert v.params.get("LNDMC_TRIG_TIME") == 10.0  # clamped to the range
-    assert v.land_detector._landed.delay_s == pytest.approx(10.0 / 3)
+    assert v.land_detector.px4._landed.delay_s == pytest.approx(10.0 / 3)
 
 
 def test_auto_land_lands_and_disarms_within_a_few_seconds_of_touching_down() -> None:

@@ -39,7 +39,7 @@ def copter(settle_s: float = 2.0) -> CopterVehicle:
 
 
 def settled(v: CopterVehicle) -> CopterVehicle:
-    run_s(v, v._settle_s + 0.1)
+    run_s(v, v.commander.settle_s + 0.1)
     v.events.clear()
     return v
 

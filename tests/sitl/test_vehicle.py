@@ -7,10 +7,11 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as M
 
+from sitl.commander import PREFLIGHT_DISARM_S
 from sitl.config import SitlConfig
 from sitl.modes import Mode
 from sitl.offboard import FRAME_BODY_NED, TargetFields
-from sitl.vehicle import PREFLIGHT_DISARM_S, SimVehicle
+from sitl.vehicle import SimVehicle
 
 
 def run_s(v: SimVehicle, seconds: float, each_step=None) -> None:
