@@ -194,3 +194,13 @@ class PrecisionLander:
             self.sent.append(target)
         return target
 
+
+def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate_hz: float, lockstep: bool) -> bool:
+    """Whether a precision-landing episode has had its time: ``max_steps`` control periods.
+    In lockstep a step is a control period (the count decides, as for every other episode); in
+    real time a step is a camera frame (LANDING_TARGET goes out at the camera's rate, 30 Hz for a
+    rendered camera), so the vehicle's clock decides, and the step count only bounds a clock that
+    stands still (at 20 frames per control period)."""
+    if lockstep:
+        return step >= max_steps
+    return elapsed_ms >= 1000.0 * max_steps / control_rate_hz or step >= 20 * max_steps

@@ -28,19 +28,20 @@ from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Arbiter, Decision, Phase
-from companion.control.ask import AskAction, AskEvent, AskSummary, HelpAsker
+from companion.control.ask import AskAction, AskEvent, HelpAsker
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
 from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapCounter
+from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
-from companion.control.precland import PrecisionLander
+from companion.control.precland import PrecisionLander, precland_time_is_up
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
-from companion.control.touchdown import TouchdownAssist, touchdown_need
+from companion.control.touchdown import TouchdownAssist, touchdown_evidence, touchdown_need
 from companion.errors import ColError, LinkError, LinkLost
-from companion.inputs.base import HumanCommand, HumanInput
+from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
-from companion.learning.ensemble import EnsembleSnapshot, disagreement
+from companion.learning.ensemble import disagreement
 from companion.learning.snapshot import PolicySnapshot
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
@@ -53,26 +54,6 @@ from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
-
-
-def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate_hz: float, lockstep: bool) -> bool:
-    """Whether a precision-landing episode has had its time: ``max_steps`` control periods.
-    In lockstep a step is a control period (the count decides, as for every other episode); in
-    real time a step is a camera frame (LANDING_TARGET goes out at the camera's rate, 30 Hz for a
-    rendered camera), so the vehicle's clock decides, and the step count only bounds a clock that
-    stands still (at 20 frames per control period)."""
-    if lockstep:
-        return step >= max_steps
-    return elapsed_ms >= 1000.0 * max_steps / control_rate_hz or step >= 20 * max_steps
-
-
-@dataclass(frozen=True)
-class _Evidence:
-    """Why the companion counts the vehicle as standing: the landed state (no note), or its own
-    evidence (the record's note, and the log's longer message)."""
-
-    note: str = ""
-    message: str = ""
 
 
 class PolicyRunner(Protocol):
@@ -203,9 +184,6 @@ class EpisodeRunner:
         self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
         """The latest steps' own compute times (bounded: a long run must not grow without end)."""
         self._dialect = parts.dialect
-        self._hold_ned: tuple[float, float, float, float] | None = None
-        self._landing = False
-        self._ask_summary: AskSummary | None = None
         self._touchdown: TouchdownAssist | None = None
         self._evidence_note: str | None = None
         self.home = HomeFrame()
@@ -217,8 +195,9 @@ class EpisodeRunner:
         self._fresh = FreshnessGate()
         self.gaps = GapCounter()
         """The current episode's steps that were not true samples, by kind (control/gaps.py)."""
-        if parts.asker is not None:
-            parts.asker.on_event = self._on_ask_event
+        self.help = (HelpSession(parts.asker, parts.human, self.port, self.period_s, parts.on_ask_event)
+                     if parts.asker is not None else None)
+        """Asking for help (companion/control/help_session.py); None: the session never asks."""
 
     @property
     def dialect(self) -> Dialect:
@@ -318,10 +297,8 @@ class EpisodeRunner:
             outcome = "error"
             notes.append(f"error: {exc}")
             self._leave_safe_after_error()
-        if self.p.asker is not None:
-            self._ask_summary = self.p.asker.end_episode(steps)
-            if self._ask_summary.unanswered:
-                notes.append("a request for help went unanswered: landed where it was")
+        if self.help is not None:
+            notes.extend(self.help.end(steps))
         notes.extend(self.gaps.notes())
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
@@ -337,72 +314,11 @@ class EpisodeRunner:
 
     # ----- asking for help -------------------------------------------------------------------
     def _begin_asking(self, episode: int) -> None:
-        """New episode: recalibrate the threshold on the dataset as it is now."""
+        """New episode: a new trace; the threshold recalibrated on the dataset as it is now."""
         self.trace = []
-        self._hold_ned, self._landing, self._ask_summary = None, False, None
-        asker = self.p.asker
-        if asker is None:
-            return
-        asker.begin_episode(episode)
-        snap = self.p.runner.latest_snapshot if self.p.runner is not None else None
-        if isinstance(snap, EnsembleSnapshot) and self.p.dataset is not None and len(self.p.dataset):
-            asker.calibrate(snap.scores(self.p.dataset.view().obs))
-        log.info("episode %d: asking for help above disagreement %.4g", episode, asker.threshold)
-
-    def _on_ask_event(self, event: AskEvent) -> None:
-        req = event.request
-        if self.p.on_ask_event is not None:
-            self.p.on_ask_event(event)
-        if event.kind == "request" and req is not None:
-            log.warning("asking for help (request %d, step %d): disagreement %.4g above %.4g; holding",
-                        req.number, event.step, req.score, req.threshold)
-            self._statustext(req.text())
-            self.p.human.on_request(req)
-            return
-        if event.kind == "unanswered":
-            log.warning("no one answered request %d within %.0f s: landing", req.number if req else 0,
-                        event.waited_steps * self.period_s)
-            self._statustext("COL: no answer, landing")
-        else:
-            log.info("request %s %s at step %d after %d steps", req.number if req else "-",
-                     event.kind.replace("_", " "), event.step, event.waited_steps)
-        if event.kind != "handed_back":
-            self.p.human.on_request(None)
-
-    def _statustext(self, text: str) -> None:
-        try:
-            self.p.link.send_statustext(text)
-        except ColError as exc:
-            log.error("could not send STATUSTEXT %r: %s", text, exc)
-
-    def _read_human(self, phase: Phase, obs: Any) -> HumanCommand:
-        """The person's input; one who watches only when asked is away between requests."""
-        asker = self.p.asker
-        if (asker is not None and phase is Phase.INTERVENTION and self.p.human.robot_gated
-                and not asker.wants_person):
-            return HumanCommand.neutral()
-        return self.p.human.read(obs)
-
-    def _ask(self, phase: Phase, step: int, score: float, human: HumanCommand) -> AskAction:
-        if self.p.asker is None or phase is not Phase.INTERVENTION:
-            return AskAction.POLICY
-        return self.p.asker.step(step, score, human.override_held)
-
-    def _send_ask_action(self, action: AskAction, snap: VehicleSnapshot) -> None:
-        """Hold where the request was raised, or land; other actions fly as usual."""
-        if action is AskAction.HOLD:
-            if self._hold_ned is None:
-                n, e, d = (float(v) for v in snap.position_ned_m)
-                self._hold_ned = (n, e, d, float(snap.attitude_rad[2]))
-            self.port.send_position(*self._hold_ned)
-            return
-        if not self._landing:
-            self._landing = True
-            try:
-                self.p.link.land()
-            except ColError as exc:
-                log.error("could not command the landing: %s; holding", exc)
-        self.port.send(HOLD)  # answers the lockstep frame; the vehicle lands in its own mode
+        if self.help is not None:
+            policy = self.p.runner.latest_snapshot if self.p.runner is not None else None
+            self.help.begin(episode, policy, self.p.dataset)
 
     def _fly(self, episode: int, phase: Phase, snap: VehicleSnapshot | None,
              t0_ms: int) -> tuple[str, int | None, int, VehicleSnapshot | None]:
@@ -469,7 +385,7 @@ class EpisodeRunner:
         max_steps = self.p.cfg.max_steps if flying else sys.maxsize
         if snap is None:  # only after the last step (the loop recovers the link before)
             return outcome_rule.judge_frame(step, max_steps, False, None)
-        evidence = self._touchdown_evidence(snap)
+        evidence = touchdown_evidence(snap, self._touchdown)
         standing = self._touchdown is not None and self._touchdown.engaged
         outcome = outcome_rule.judge_snapshot(step, max_steps, snap, self.p.fence if flying else None, self.home,
                                               touched_down=evidence is not None, standing=standing)
@@ -530,24 +446,6 @@ class EpisodeRunner:
             return self.port.next_snapshot()
         return self.port.newest()
 
-    def _touchdown_evidence(self, snap: VehicleSnapshot) -> _Evidence | None:
-        """Whether the vehicle stands: its landed state; for a vehicle that reports none, or whose
-        detector is fed a drifting estimate, the companion's evidence (with a note); None: not."""
-        if snap.landed_state == "ON_GROUND":
-            return _Evidence()
-        assist = self._touchdown
-        if snap.landed_state == "UNDEFINED" and assist is not None and assist.standing_long_enough():
-            return _Evidence("touchdown judged by the companion: no landed state, standing",
-                             "touchdown judged by the companion: the vehicle reports no landed state "
-                             f"(EXTENDED_SYS_STATE) and has stood on a surface, asked down, for "
-                             f"{assist.cfg.evidence_touchdown_s:.1f} s")
-        if assist is not None and assist.active and assist.range_contact_long_enough():
-            return _Evidence("touchdown judged by the companion: rangefinder contact (the vehicle still said in air)",
-                             "touchdown judged by the companion: its downward rangefinder has read contact for "
-                             f"{assist.cfg.evidence_touchdown_s:.1f} s while the vehicle, still saying "
-                             f"{snap.landed_state}, was asked down")
-        return None
-
     # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
     def begin(self, seed: int | None) -> VehicleSnapshot:
         """Start an episode as :meth:`run` does (reset or fly to the start, then OFFBOARD) and
@@ -579,19 +477,19 @@ class EpisodeRunner:
             self.port.send(HOLD)
             return None
         self._note_gap(VIDEO_MISSING if obs.frame_missing else None)
-        human = self._read_human(phase, obs)
+        human = self.help.read_human(phase, obs) if self.help is not None else self.p.human.read(obs)
         policy_cmd, version, score = self._policy_command(vector)
-        action = self._ask(phase, step, score, human)
+        action = self.help.action(phase, step, score, human) if self.help is not None else AskAction.POLICY
         decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing)
         sp = HOLD  # what a watcher is shown while the vehicle holds or lands on a request
         lost: LinkLost | None = None
         try:
             if action in (AskAction.HOLD, AskAction.LAND):
-                self._send_ask_action(action, snap)
+                assert self.help is not None  # only asking holds or lands
+                self.help.carry_out(action, snap)
                 self.trace.append((step, score, action.value))
             else:
-                if self._hold_ned is not None:  # the hold ended: rate limits start from what is asked now
-                    self._hold_ned = None
+                if self.help is not None and self.help.release_hold():  # rate limits start from what is asked now
                     self.p.limiter.reset()
                 sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
                 if self._touchdown is not None:
@@ -615,10 +513,8 @@ class EpisodeRunner:
     def _supervised_steps(self, phase: Phase, steps: int) -> int:
         if phase is Phase.AUTONOMOUS:
             return 0
-        ask = self._ask_summary
-        if phase is Phase.INTERVENTION and ask is not None and self.p.human.robot_gated:
-            return ask.engaged_steps
-        return steps
+        engaged = self.help.supervised_steps(phase, steps) if self.help is not None else None
+        return steps if engaged is None else engaged
 
     def _score(self, outcome: str, snap: VehicleSnapshot | None, notes: list[str]) -> outcome_rule.Score:
         """The one scoring rule (companion/control/outcome.py) on what this vehicle offers: the
@@ -648,7 +544,7 @@ class EpisodeRunner:
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
                 notes: list[str]) -> EpisodeRecord:
         summary = self.arbiter.summary()
-        ask = self._ask_summary
+        ask = self.help.summary if self.help is not None else None
         result = self._score(outcome, snap, notes)
         durations = summary.durations_s(self.period_s)
         sim_s = ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0

@@ -164,3 +164,30 @@ class TouchdownAssist:
         if setpoint.down_m_s >= self.wanted_m_s:
             return setpoint
         return VelocitySetpoint(setpoint.forward_m_s, setpoint.right_m_s, self.wanted_m_s, setpoint.yaw_rate_rad_s)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """Why the companion counts the vehicle as standing: its landed state (no note), or the
+    companion's own evidence (the episode record's note, and the log's longer message)."""
+
+    note: str = ""
+    message: str = ""
+
+
+def touchdown_evidence(snap: VehicleSnapshot, assist: TouchdownAssist | None) -> Evidence | None:
+    """Whether the vehicle stands: its landed state; for a vehicle that reports none, or whose
+    detector is fed a drifting estimate, the assist's evidence (with a note); None: not."""
+    if snap.landed_state == "ON_GROUND":
+        return Evidence()
+    if snap.landed_state == "UNDEFINED" and assist is not None and assist.standing_long_enough():
+        return Evidence("touchdown judged by the companion: no landed state, standing",
+                        "touchdown judged by the companion: the vehicle reports no landed state "
+                        f"(EXTENDED_SYS_STATE) and has stood on a surface, asked down, for "
+                        f"{assist.cfg.evidence_touchdown_s:.1f} s")
+    if assist is not None and assist.active and assist.range_contact_long_enough():
+        return Evidence("touchdown judged by the companion: rangefinder contact (the vehicle still said in air)",
+                        "touchdown judged by the companion: its downward rangefinder has read contact for "
+                        f"{assist.cfg.evidence_touchdown_s:.1f} s while the vehicle, still saying "
+                        f"{snap.landed_state}, was asked down")
+    return None

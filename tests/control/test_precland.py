@@ -334,7 +334,7 @@ def test_the_precland_pilot_needs_the_board_on_the_pad(tmp_path) -> None:  # typ
 def test_a_precland_episode_lasts_max_steps_control_periods_whatever_the_camera_rate() -> None:
     """Real time: steps are camera frames (30 Hz for a rendered camera), so 500 of them were
     16.7 s and real PX4 timed out before its approach was done; the vehicle's clock decides."""
-    from companion.control.session import precland_time_is_up
+    from companion.control.precland import precland_time_is_up
 
     limit_ms = 500 / 10.5 * 1000  # 47.6 s
     assert not precland_time_is_up(1400, int(limit_ms) - 1, 500, 10.5, lockstep=False)  # 1,400 frames at 30 Hz
