@@ -216,13 +216,13 @@ def floor(steps: int) -> dict[str, Any]:
     pad detection, in CPU ms per env step; the rest of the step is glue (session, MAVLink
     semantics, telemetry, observation). ``bound_steps_per_s_on_2_idle_cores``: what 2 cores
     would give if the glue and the inter-process hand-over cost nothing."""
-    import sitl.server
+    import sitl.camera_feed
     import sitl.vehicle
     from companion.vision.perception import PadDetector
 
     cfg = load_companion_config(PAPER)
     env = LandingEnv(2, cfg, config_path=PAPER, inprocess=True)
-    parts = {"vehicle_12_fdm_steps": (sitl.vehicle.SimVehicle, "step"), "render_and_noise": (sitl.server, "render_frame"),
+    parts = {"vehicle_12_fdm_steps": (sitl.vehicle.SimVehicle, "step"), "render_and_noise": (sitl.camera_feed, "render_frame"),
              "pad_detection": (PadDetector, "detect")}
     try:
         _step_env(env, 100, np.random.default_rng(1))  # warm

@@ -51,7 +51,8 @@ from companion.simulator import SimulatorClient
 from sitl.config import SitlConfig, load_sitl_config
 from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.handler import Outgoing
-from sitl.server import MavClient, SitlServer
+from sitl.server import SitlServer
+from sitl.transports import MavClient
 
 INPROCESS_CONNECTION = "udpin:127.0.0.1:1"
 """What the link's config names as its connection (messages only; no port is opened)."""

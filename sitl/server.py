@@ -1,29 +1,28 @@
-"""The SITL process's I/O: MAVLink over UDP and TCP, the camera stream, the control surface,
-and the clock (real time with a speed factor, or lockstep). One thread, one selector.
+"""The SITL process: a simulated vehicle behind MAVLink, camera and control-surface sockets.
 
-The frame loop: advance one agent period (``steps_per_frame`` FDM steps), send the frame's
-camera image and telemetry, end with the SYSTEM_TIME marker; in lockstep wait for the answer
-(a setpoint echoing the marker's time_boot_ms, a MANUAL_CONTROL, or an episode reset) or the
-timeout. Until some client answers, a lockstep SITL paces itself in real time so that ground
-stations and MAVSDK can connect; after three unanswered frames it falls back to that pacing.
+One thread, one selector. The frame loop: advance one agent period (``steps_per_frame`` FDM
+steps), send the frame's camera image and telemetry, end with the SYSTEM_TIME marker; in
+lockstep wait for the answer (a setpoint echoing the marker's time_boot_ms, a MANUAL_CONTROL,
+or an episode reset) or the timeout. Until some client answers, a lockstep SITL paces itself in
+real time so that ground stations and MAVSDK can connect; after three unanswered frames it
+falls back to that pacing (sitl/clock.py). The sockets are sitl/transports.py's, the camera
+sitl/camera_feed.py's; what stays here is the frame loop and the MAVLink routing.
 """
 
 from __future__ import annotations
 
-import ipaddress
-import json
 import logging
 import selectors
 import socket
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.camera_feed import CameraFeed, FrameSink
+from sitl.clock import ClockStats, Pacer, frame_steps
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, parse_request
 from sitl.exposure import authorised, check_exposure
@@ -31,199 +30,18 @@ from sitl.handler import AUTOPILOT, CAMERA, CameraInfo, MessageHandler, Outgoing
 from sitl.personality import make_vehicle
 from sitl.signing import SitlSigning
 from sitl.telemetry import COMPOSERS, TelemetryScheduler
+from sitl.transports import ControlChannel, ControlClient, MavClient, TcpClient, UdpClient, listener
 from sitl.vehicle import FIRST_LOCKSTEP_EPISODE_S, SimVehicle
-
-if TYPE_CHECKING:
-    import numpy as np
-
-    from sitl.camera import CameraRenderer
-    from sitl.frames import Frame
 
 log = logging.getLogger("sitl.server")
 M = mavlink
 FORWARDED = ("MANUAL_CONTROL", "STATUSTEXT")
-DETACH_AFTER_TIMEOUTS = 3
-MAX_TCP_BACKLOG_BYTES = 1 << 20
-CONTROL_REPLY_TIMEOUT_S = 1.0
-UDP_PAYLOAD_BYTES = 1472  # one Ethernet MTU: what a real radio or network link carries
-
-
-class MavClient:
-    """One MAVLink peer (a UDP port pair or a TCP connection) with its own parser."""
-
-    name: str
-    secure = False  # may set a first signing key (SETUP_SIGNING): a wired link
-    signing: SitlSigning | None = None
-
-    def __init__(self) -> None:
-        self._new_parser()
-        self.active = False  # has the peer ever talked to us?
-        self.bad_packets = 0
-        self.signed_peer = False  # a validly signed message came in: only signed ones redirect us
-
-    def use_signing(self, signing: SitlSigning) -> None:
-        self.signing = signing
-        self._new_parser()
-
-    def _new_parser(self) -> None:
-        self.parser = M.MAVLink(None, 0, 0)
-        self.parser.robust_parsing = True
-        if self.signing is not None:  # shared state: a parser reset never forgets a stream
-            self.signing.attach(self.parser)
-
-    def adopts_sender(self, msgs: list[mavlink.MAVLink_message]) -> bool:
-        """May these messages make their sender our peer? With signing required, once a signed
-        peer talked, only signed messages can (an unsigned sender cannot take its telemetry)."""
-        if any(m.get_signed() for m in msgs):
-            self.signed_peer = True
-            return True
-        return self.signing is None or not self.signing.required or not self.signed_peer
-
-    def parse(self, data: bytes) -> list[mavlink.MAVLink_message]:
-        try:
-            msgs = self.parser.parse_buffer(data) or []
-        except Exception:  # noqa: BLE001 - pymavlink raises bare exceptions on garbage
-            self.bad_packets += 1
-            self._new_parser()
-            return []
-        good = [m for m in msgs if m.get_type() != "BAD_DATA"]
-        self.bad_packets += len(msgs) - len(good)
-        return good
-
-    def send(self, data: bytes) -> None:
-        raise NotImplementedError
-
-    def flush(self) -> None:
-        """Push out anything queued by :meth:`send` (a no-op for unbuffered transports)."""
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-
-class UdpClient(MavClient):
-    """A local UDP port that sends to a default remote until a peer talks to it (as PX4)."""
-
-    def __init__(self, host: str, local_port: int, remote_port: int) -> None:
-        super().__init__()
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
-        self.sock.bind((host, local_port))
-        self.sock.setblocking(False)
-        self.local_port = self.sock.getsockname()[1]
-        self.remote = (host, remote_port)
-        self.outbox = bytearray()
-        self.name = f"udp:{self.local_port}->{remote_port}"
-
-    def read(self) -> list[mavlink.MAVLink_message]:
-        msgs: list[mavlink.MAVLink_message] = []
-        while True:
-            try:
-                data, addr = self.sock.recvfrom(65535)
-            except (BlockingIOError, InterruptedError):
-                return msgs
-            except OSError:  # ICMP port unreachable from an earlier send: nobody listening
-                continue
-            new = self.parse(data)
-            if self.adopts_sender(new):
-                self.remote = addr
-                self.active = True
-            msgs.extend(new)
-            if len(self.parser.buf) > self.parser.buf_index:  # a datagram is whole: drop leftovers
-                self._new_parser()
-
-    def send(self, data: bytes) -> None:
-        """Queue ``data``; :meth:`flush` packs queued messages into few datagrams, as PX4 does."""
-        if len(self.outbox) + len(data) > UDP_PAYLOAD_BYTES:
-            self.flush()
-        self.outbox += data
-
-    def flush(self) -> None:
-        if not self.outbox:
-            return
-        try:
-            self.sock.sendto(self.outbox, self.remote)
-        except OSError:
-            pass  # nobody listening there (yet): a real autopilot keeps sending too
-        self.outbox = bytearray()
-
-    def close(self) -> None:
-        self.sock.close()
-
-
-class TcpClient(MavClient):
-    """An accepted TCP connection; a client that cannot keep up is dropped, never waited for."""
-
-    def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
-        super().__init__()
-        self.secure = ipaddress.ip_address(addr[0]).is_loopback  # a wire to this machine, like USB
-        self.sock = sock
-        self.sock.setblocking(False)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.name = f"tcp:{addr[0]}:{addr[1]}"
-        self.pending = b""
-        self.closed = False
-        self.active = True
-
-    def read(self) -> list[mavlink.MAVLink_message]:
-        try:
-            data = self.sock.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return []
-        except OSError:
-            data = b""
-        if not data:
-            self.closed = True
-            return []
-        return self.parse(data)
-
-    def send(self, data: bytes) -> None:
-        if self.closed:
-            return
-        self.pending += data
-        try:
-            sent = self.sock.send(self.pending)
-            self.pending = self.pending[sent:]
-        except (BlockingIOError, InterruptedError):
-            pass
-        except OSError:
-            self.closed = True
-        if len(self.pending) > MAX_TCP_BACKLOG_BYTES:
-            log.warning("%s cannot keep up; dropping it", self.name)
-            self.closed = True
-
-    def close(self) -> None:
-        self.closed = True
-        self.sock.close()
-
-
-@dataclass
-class ControlClient:
-    sock: socket.socket
-    buffer: bytes = b""
-    closed: bool = False
-
-
-@dataclass
-class ClockStats:
-    frames: int = 0
-    answered: int = 0
-    timeouts: int = 0
-    attached: bool = False
-    timeouts_in_row: int = 0
-    extra: dict = field(default_factory=dict)
-
-
-def _listener(host: str, port: int) -> socket.socket:
-    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    s.bind((host, port))
-    s.listen(8)
-    s.setblocking(False)
-    return s
 
 
 class SitlServer:
-    """Runs a SimVehicle behind MAVLink, camera and control-surface sockets."""
+    """Runs a SimVehicle behind MAVLink, camera and control-surface sockets, frame by frame:
+    the composition of the transports (sitl/transports.py), the clock (sitl/clock.py) and the
+    camera (sitl/camera_feed.py), with the MAVLink routing between them and the vehicle."""
 
     def __init__(self, cfg: SitlConfig, frame_sink: FrameSink | None = None, signing_key: bytes | None = None,
                  allow_remote: bool = False, control_token: str | None = None) -> None:
@@ -250,9 +68,9 @@ class SitlServer:
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
+        self.pacer = Pacer(cfg.clock.speed if not self.lockstep else 1.0)
         self._answered = False
         self._frame_ms = -1
-        self._control_queue: deque[tuple[ControlClient, bytes]] = deque()
         self._at_frame_boundary = True
         self._mav_out = {c: self.signing.attach(M.MAVLink(None, net.system_id, c)) for c in (AUTOPILOT, CAMERA)}
         for local, remote in zip(net.udp_local_ports, net.udp_remote_ports):
@@ -260,11 +78,11 @@ class SitlServer:
             c.use_signing(self.signing)
             self.clients.append(c)
             self.sel.register(c.sock, selectors.EVENT_READ, lambda c=c: self._on_mavlink(c, c.read()))
-        self.tcp_listener = _listener(net.host, net.tcp_port) if net.tcp_port is not None else None
+        self.tcp_listener = listener(net.host, net.tcp_port) if net.tcp_port is not None else None
         if self.tcp_listener is not None:
             self.sel.register(self.tcp_listener, selectors.EVENT_READ, self._accept_tcp)
-        self.control_listener = _listener(net.host, net.control_port)
-        self.sel.register(self.control_listener, selectors.EVENT_READ, self._accept_control)
+        self.control_listener = listener(net.host, net.control_port)
+        self.control = ControlChannel(self.sel, self.control_listener, self._on_control_data)
         self.sel.register(self._wake_r, selectors.EVENT_READ, self._drain_wake)
         self.camera = self._open_camera() if cfg.camera.enabled else None
         cam_info = None
@@ -274,11 +92,10 @@ class SitlServer:
                                   cfg.clock.frame_rate_hz, rtp.uri if rtp is not None else None)
         self.handler = MessageHandler(self.vehicle, self.scheduler, cam_info)
         self._rebooted = False  # the autopilot was silent for a reboot: its streams start afresh
-        self._next_camera_heartbeat_s = 0.0
         self._ran_free = False  # lockstep frames ran before anyone answered them (in real time)
 
-    def _open_camera(self) -> _CameraFeed:
-        return _CameraFeed(self.cfg, self.vehicle, self._frame_sink)
+    def _open_camera(self) -> CameraFeed:
+        return CameraFeed(self.cfg, self.vehicle, self._frame_sink)
 
     # ----- addresses -------------------------------------------------------------------------
     def ports(self) -> dict[str, object]:
@@ -310,8 +127,7 @@ class SitlServer:
     def serve(self, max_sim_s: float | None = None, on_frame: Callable[[], None] | None = None) -> None:
         """Run frames until stop() (or ``max_sim_s`` of simulation time), then close everything."""
         try:
-            self._wall0 = time.monotonic()
-            self._sim0 = self.vehicle.time_s
+            self.pacer.restart(self.vehicle.time_s)
             while not self._stop.is_set():
                 if max_sim_s is not None and self.vehicle.time_s >= max_sim_s:
                     break
@@ -344,12 +160,7 @@ class SitlServer:
 
     def _pace(self) -> None:
         """Real time: poll sockets until the wall clock catches up with simulation time."""
-        speed = self.cfg.clock.speed if not self.lockstep else 1.0
-        target = self._wall0 + (self.vehicle.time_s - self._sim0) / speed
-        now = time.monotonic()
-        if now - target > 0.5:  # fell behind (a debugger, a loaded machine): no catch-up burst
-            self._wall0, self._sim0 = now, self.vehicle.time_s
-            target = now
+        target = self.pacer.target(self.vehicle.time_s)
         while True:
             self._poll(max(0.0, target - time.monotonic()))
             if time.monotonic() >= target or self._stop.is_set():
@@ -367,16 +178,9 @@ class SitlServer:
         if not self.stats.attached:
             self._ran_free = True
             return
-        if self._answered:
-            self.stats.answered += 1
-            self.stats.timeouts_in_row = 0
-        else:
-            self.stats.timeouts += 1
-            self.stats.timeouts_in_row += 1
-            if self.stats.timeouts_in_row >= DETACH_AFTER_TIMEOUTS:
-                log.info("lockstep client silent: pacing in real time until it answers")
-                self.stats.attached = False
-                self._wall0, self._sim0 = time.monotonic(), self.vehicle.time_s
+        if self.stats.frame_ended(self._answered):
+            log.info("lockstep client silent: pacing in real time until it answers")
+            self.pacer.restart(self.vehicle.time_s)
 
     def _end_frame(self) -> None:
         """Camera image (lockstep: the frame's own), pending events and the frame marker."""
@@ -387,9 +191,8 @@ class SitlServer:
         if self.camera is not None:
             if self.lockstep:  # every frame's own image, fully written before its marker
                 self.camera.publish(blocking=True)
-            if v.time_s >= self._next_camera_heartbeat_s:
-                self._next_camera_heartbeat_s = v.time_s + 1.0
-                hb = M.MAVLink_heartbeat_message(M.MAV_TYPE_CAMERA, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
+            hb = self.camera.heartbeat(v.time_s)
+            if hb is not None:
                 self._broadcast(Outgoing(CAMERA, hb))
         if not self._silent_for_reboot():
             self._flush_events()
@@ -488,8 +291,7 @@ class SitlServer:
             if echo is not None and (echo == -1 or echo >= self._frame_ms):
                 self._answered = True
                 if self.lockstep and not self.stats.attached:
-                    self.stats.attached = True
-                    self.stats.timeouts_in_row = 0
+                    self.stats.attach()
         self._flush_events()
         self._flush_all()
 
@@ -516,63 +318,22 @@ class SitlServer:
         log.info("%s connected", c.name)
 
     # ----- control surface -------------------------------------------------------------------
-    def _accept_control(self) -> None:
-        try:
-            sock, _ = self.control_listener.accept()
-        except OSError:
-            return
-        sock.setblocking(False)
-        cc = ControlClient(sock)
-        self.sel.register(sock, selectors.EVENT_READ, lambda cc=cc: self._on_control(cc))
-
-    def _on_control(self, cc: ControlClient) -> None:
-        try:
-            data = cc.sock.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            data = b""
-        if not data or len(cc.buffer) > 1 << 16:
-            self._close_control(cc)
-            return
-        cc.buffer += data
-        while b"\n" in cc.buffer and not cc.closed:
-            line, cc.buffer = cc.buffer.split(b"\n", 1)
-            if line.strip():
-                self._control_queue.append((cc, line))
+    def _on_control_data(self) -> None:
         if self._at_frame_boundary:
             self._serve_control_queue()
 
     def _serve_control_queue(self) -> None:
         """Answer queued control requests. Called only between frames, so an episode reset
         never lands in the middle of one: the first frame of an episode is always whole."""
-        while self._control_queue:
-            cc, line = self._control_queue.popleft()
-            if not cc.closed:
-                self._reply_control(cc, line)
-
-    def _close_control(self, cc: ControlClient) -> None:
-        if cc.closed:
-            return
-        cc.closed = True
-        try:
-            self.sel.unregister(cc.sock)
-        except (KeyError, ValueError):
-            pass
-        cc.sock.close()
+        while (request := self.control.next_request()) is not None:
+            self._reply_control(*request)
 
     def _reply_control(self, cc: ControlClient, line: bytes) -> None:
         if authorised(line, self.control_token):
             reply = self.control_reply(line)
         else:
             reply = {"ok": False, "error": "unauthorised: this control surface needs its \"token\""}
-        try:  # bounded: a client that never reads its replies must not stall the simulation
-            cc.sock.settimeout(CONTROL_REPLY_TIMEOUT_S)
-            cc.sock.sendall((json.dumps(reply) + "\n").encode())
-            cc.sock.setblocking(False)
-        except OSError:
-            log.warning("control client does not take its replies; closing it")
-            self._close_control(cc)
+        self.control.reply(cc, reply)
         self._flush_events()
         self._flush_all()
 
@@ -595,15 +356,15 @@ class SitlServer:
             reply = handle_request(self.vehicle, req, camera_uri, self.cfg.clock.mode,
                                    episode_start_s=self._first_episode_start_s())
             if req["cmd"] == "reset":
-                self._next_camera_heartbeat_s -= (self.vehicle.clock_offset_ms - offset_ms) / 1000.0
+                if self.camera is not None:
+                    self.camera.rebase_clock((self.vehicle.clock_offset_ms - offset_ms) / 1000.0)
                 self.scheduler = self._fresh_scheduler()
                 self.handler.scheduler = self.scheduler
                 self._answered = True  # a reset answers the frame: the next one shows the start
                 if self.lockstep and not self.stats.attached:
                     # whoever resets episodes drives the clock: from the first frame of the
                     # episode on, each frame waits for its answer (no real-time frames slip in)
-                    self.stats.attached = True
-                    self.stats.timeouts_in_row = 0
+                    self.stats.attach()
         except RequestError as exc:
             reply = {"ok": False, "error": str(exc)}
         except (RecursionError, ValueError, TypeError, OverflowError, KeyError) as exc:
@@ -629,84 +390,3 @@ class SitlServer:
         if self.camera is not None:
             self.camera.close()
         self.sel.close()
-
-
-def frame_steps(cfg: SitlConfig) -> int:
-    """FDM steps in one agent (camera) frame: 12 at 126 Hz and 10.5 Hz."""
-    return max(1, int(round(cfg.clock.fdm_rate_hz / cfg.clock.frame_rate_hz)))
-
-
-def render_frame(renderer: CameraRenderer, v: SimVehicle) -> np.ndarray:
-    """The camera's image now: the true pose (``frame_latency`` ago) through the camera as
-    mounted, with the episode's pixel noise; stamped by the caller with the current time."""
-    s = v.camera_state
-    d = v.disturbance
-    image = renderer.render(s.position_ned_m, s.attitude_rad, s.time_s, d.camera_mount)
-    return d.add_image_noise(image, v.dynamics.steps)
-
-
-class FrameSink(Protocol):
-    """Where the camera's frames go: :class:`~sitl.frames.FrameServer` (TCP readers), or a
-    reader in the same process."""
-
-    @property
-    def uri(self) -> str: ...
-
-    @property
-    def port(self) -> int: ...
-
-    @property
-    def client_count(self) -> int: ...
-
-    def publish(self, frame: Frame, blocking: bool) -> None: ...
-
-    def close(self) -> None: ...
-
-
-class _CameraFeed:
-    """Renders the downward camera from the true pose and publishes it on the frame server
-    (or on ``sink``)."""
-
-    def __init__(self, cfg: SitlConfig, vehicle: SimVehicle, sink: FrameSink | None = None) -> None:
-        from sitl.camera import CameraRenderer
-        from sitl.frames import FrameServer
-
-        self.vehicle = vehicle
-        self.renderer = CameraRenderer(cfg.camera, vehicle.world)
-        self.server: FrameSink = sink if sink is not None else FrameServer(
-            cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding,
-            jpeg_quality=cfg.camera.jpeg_quality)
-        self.frame_number = 0
-        self.interval_s = 1.0 / cfg.camera.stream_rate_hz
-        self._next_s = 0.0
-        self.rtp = None
-        if cfg.network.rtp_video:
-            from sitl.rtp import RtpVideoSender
-
-            rate = cfg.camera.stream_rate_hz if cfg.clock.mode == "realtime" else cfg.clock.frame_rate_hz
-            self.rtp = RtpVideoSender(cfg.network.rtp_video, cfg.camera.width_px, cfg.camera.height_px, rate)
-
-    def publish_if_due(self, blocking: bool) -> None:
-        """Real time: frames on their own clock (stream_rate_hz of simulation time)."""
-        t = self.vehicle.time_s
-        if t + 1e-9 >= self._next_s:
-            self._next_s = max(self._next_s + self.interval_s, t)
-            self.publish(blocking)
-
-    def publish(self, blocking: bool) -> None:
-        from sitl.frames import Frame
-
-        rtp = self.rtp if self.rtp is not None and self.rtp.alive else None
-        if self.server.client_count == 0 and rtp is None:
-            return
-        image = render_frame(self.renderer, self.vehicle)
-        if self.server.client_count:
-            self.server.publish(Frame(self.frame_number, self.vehicle.time_boot_ms, image), blocking=blocking)
-        if rtp is not None:
-            rtp.publish(image)
-        self.frame_number += 1
-
-    def close(self) -> None:
-        self.server.close()
-        if self.rtp is not None:
-            self.rtp.close()

@@ -49,13 +49,14 @@ from companion.link.base import LANDED_STATES, VehicleSnapshot
 from companion.link.mavlink_link import default_rates_hz, interval_params
 from companion.link.telemetry import initial_snapshot, with_changes
 from companion.link.wire_copy import wire_copy
+from sitl.camera_feed import render_frame
+from sitl.clock import frame_steps
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, truth
 from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.handler import AUTOPILOT
 from sitl.offboard import TargetFields
 from sitl.personality import make_vehicle
-from sitl.server import frame_steps, render_frame
 from sitl.telemetry import (
     COMPOSERS,
     TelemetryScheduler,

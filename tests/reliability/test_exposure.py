@@ -16,7 +16,8 @@ from companion.errors import SimulatorError
 from companion.simulator import SimulatorClient
 from sitl.config import SitlConfig
 from sitl.exposure import authorised, check_exposure, is_loopback
-from sitl.server import SitlServer, UdpClient
+from sitl.server import SitlServer
+from sitl.transports import UdpClient
 
 TOKEN = "correct-horse-battery-staple"
 

@@ -21,8 +21,8 @@ from companion.testing.fuzz import KINDS, packets
 from companion.testing.fuzz_targets import fuzz_link, fuzz_sitl
 from sitl.config import SitlConfig
 from sitl.handler import MessageHandler
-from sitl.server import MavClient
 from sitl.telemetry import TelemetryScheduler
+from sitl.transports import MavClient
 from sitl.vehicle import SimVehicle
 
 PROPERTY = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -101,7 +101,7 @@ def _render_both(new: CameraRenderer, ref: ReferenceRenderer, pose, t_s: float, 
     position, attitude = pose
     mount = dist.camera_mount if dist is not None else None
     a, b = new.render(position, attitude, t_s, mount), ref.render(position, attitude, t_s, mount)
-    if dist is not None:  # what sitl.server.render_frame sends
+    if dist is not None:  # what sitl.camera_feed.render_frame sends
         a, b = dist.add_image_noise(a, step), dist.add_image_noise(b, step)
     return a, b
 

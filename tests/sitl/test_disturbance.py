@@ -15,13 +15,13 @@ from pymavlink.dialects.v20 import common as M
 
 from colcommon.errors import ConfigError
 from sitl.camera import CameraRenderer
+from sitl.camera_feed import render_frame
 from sitl.config import DisturbanceConfig, SitlConfig, load_sitl_config
 from sitl.control_surface import handle_request
 from sitl.disturbance import EpisodeDisturbance, saturated_add
 from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Atmosphere, Dynamics
 from sitl.modes import Mode
 from sitl.offboard import FRAME_BODY_NED, TargetFields
-from sitl.server import render_frame
 from sitl.telemetry import COMPOSERS, attitude, attitude_quaternion
 from sitl.vehicle import SimVehicle
 
