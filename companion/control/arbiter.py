@@ -5,7 +5,9 @@ input: the step where the override becomes held already uses the person's comman
 person's commands are ever recorded, tagged by the session's phase. When the person is in
 charge but their input is lost (``HumanCommand.hold``), the vehicle hovers (neutral sticks),
 nothing is recorded and the policy does not take over: it flies again only when the person
-lets go explicitly.
+lets go explicitly. When asking for help (companion/control/ask.py) holds the vehicle where it
+asked, or lands it because nobody answered, that overrides both ("hold", "land"): nothing is
+recorded, since nobody's command flies.
 """
 
 from __future__ import annotations
@@ -15,9 +17,11 @@ from enum import Enum
 from typing import Literal
 
 from companion.commands import JoystickCommand
+from companion.control.ask import AskAction
 from companion.inputs.base import HumanCommand
 
-Source = Literal["human", "policy"]
+Source = Literal["human", "policy", "hold", "land"]
+ASKED: dict[AskAction, Source] = {AskAction.HOLD: "hold", AskAction.LAND: "land"}
 Tag = Literal["demonstration", "intervention"]
 
 
@@ -39,8 +43,8 @@ class Decision:
     tag: Tag | None
 
     def __post_init__(self) -> None:
-        if self.source not in ("human", "policy"):
-            raise ValueError(f"Decision.source must be 'human' or 'policy', got {self.source!r}")
+        if self.source not in ("human", "policy", "hold", "land"):
+            raise ValueError(f"Decision.source must be 'human', 'policy', 'hold' or 'land', got {self.source!r}")
         if self.record != (self.tag is not None):
             raise ValueError(
                 "a recorded decision needs a tag and an unrecorded one must not have one"
@@ -77,12 +81,15 @@ class Arbiter:
         self._intervening = False
 
     def decide(self, phase: Phase, human: HumanCommand, policy_cmd: JoystickCommand,
-               recordable: bool = True) -> Decision:
+               recordable: bool = True, asked: AskAction = AskAction.POLICY) -> Decision:
         """The person in demonstrations, and in interventions while holding the override.
         ``recordable=False``: the step's observation is not the vehicle's true state (its camera
-        frame is missing, companion/control/gaps.py): the same command flies, nothing is recorded."""
+        frame is missing, companion/control/gaps.py): the same command flies, nothing is recorded.
+        ``asked``: what asking for help wants this step; HOLD and LAND override both."""
         decision = self._choose(phase, human, policy_cmd)
-        if decision.record and not recordable:
+        if asked in ASKED:
+            decision = Decision(JoystickCommand.neutral(), ASKED[asked], False, None)
+        elif decision.record and not recordable:
             decision = Decision(decision.command, decision.source, False, None)
         self._count(phase, human, decision)
         return decision

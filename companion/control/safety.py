@@ -112,6 +112,11 @@ class SetpointLimiter:
     def reset(self) -> None:
         self._last = None
 
+    @property
+    def max_down_m_s(self) -> float:
+        """The fastest descent it lets through (the commands' v_z_max)."""
+        return float(self._max[2])
+
     def apply(self, setpoint: VelocitySetpoint, dt_s: float) -> VelocitySetpoint:
         """The setpoint to send after ``dt_s`` seconds since the previous one."""
         wanted = np.array(setpoint.as_tuple())

@@ -218,7 +218,8 @@ class EpisodeRunner:
             return None
         if self._touchdown is None:
             need = touchdown_need(self.dialect_autopilot(), self.p.link.read_param, landing.min_descent_m_s)
-            self._touchdown = TouchdownAssist(need, landing, self.period_s, -self.p.cfg.pad_ned_m[2], self.home)
+            self._touchdown = TouchdownAssist(need, landing, self.period_s, -self.p.cfg.pad_ned_m[2], self.home,
+                                              self.p.limiter.max_down_m_s)
             log.info("touchdown: %s%s", need.why,
                      f"; standing on a surface, the companion asks {self._touchdown.wanted_m_s:.3f} m/s"
                      if self._touchdown.active else "; nothing to add")
@@ -480,26 +481,21 @@ class EpisodeRunner:
         human = self.help.read_human(phase, obs) if self.help is not None else self.p.human.read(obs)
         policy_cmd, version, score = self._policy_command(vector)
         action = self.help.action(phase, step, score, human) if self.help is not None else AskAction.POLICY
-        decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing)
+        decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing, asked=action)
         sp = HOLD  # what a watcher is shown while the vehicle holds or lands on a request
         lost: LinkLost | None = None
         try:
-            if action in (AskAction.HOLD, AskAction.LAND):
+            if decision.source in ("hold", "land"):
                 assert self.help is not None  # only asking holds or lands
                 self.help.carry_out(action, snap)
-                self.trace.append((step, score, action.value))
             else:
-                if self.help is not None and self.help.release_hold():  # rate limits start from what is asked now
-                    self.p.limiter.reset()
-                sp = self.p.limiter.apply(self.p.mapper.to_setpoint(decision.command), self.period_s)
-                if self._touchdown is not None:
-                    sp = self._touchdown.apply(sp, snap)
+                sp = self._setpoint(decision.command, snap)
                 self.port.send(sp)
-                self.trace.append((step, score, decision.source))
+            self.trace.append((step, score, decision.source))
         except LinkLost as exc:  # silent since this step's telemetry: still a true sample; then recover
             lost = exc
         self.step_latencies_s.append(time.perf_counter() - t_start)
-        if decision.record and action is not AskAction.LAND and self.p.dataset is not None:
+        if decision.record and self.p.dataset is not None:
             source = Source.DEMONSTRATION if decision.tag == "demonstration" else Source.INTERVENTION
             self.p.dataset.append(Sample(episode, step, (obs.time_boot_ms - t0_ms) / 1000.0, source, vector,
                                          decision.command.to_array()))
@@ -509,6 +505,16 @@ class EpisodeRunner:
         if lost is not None:
             raise lost
         return version
+
+    def _setpoint(self, command: JoystickCommand, snap: VehicleSnapshot) -> VelocitySetpoint:
+        """The command as the vehicle is sent it: mapped, limited, then the touchdown assist. The
+        assist comes after the limiter on purpose: a land detector needs a descent the limiter's
+        rate limit would spread over seconds; it only ever asks for a descent within the
+        commands' limits (companion/control/touchdown.py, tests/control/test_touchdown.py)."""
+        if self.help is not None and self.help.release_hold():  # rate limits start from what is asked now
+            self.p.limiter.reset()
+        sp = self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s)
+        return self._touchdown.apply(sp, snap) if self._touchdown is not None else sp
 
     def _supervised_steps(self, phase: Phase, steps: int) -> int:
         if phase is Phase.AUTONOMOUS:

@@ -88,13 +88,15 @@ class TouchdownAssist:
     """
 
     def __init__(self, need: TouchdownNeed, cfg: LandingConfig, period_s: float, pad_height_m: float,
-                 home: HomeFrame) -> None:
+                 home: HomeFrame, max_down_m_s: float = math.inf) -> None:
         self.need, self.cfg, self.home, self.period_s = need, cfg, home, period_s
         # the vehicle's own landing descent, where it says: on real PX4 SIH 0.33 m/s (1.2 x the
         # minimum) on the ground left its estimate sinking at 0.1-0.2 m/s, the thrust near hover
         # and the detector waiting for 10 s and more; at MPC_LAND_SPEED (0.7) its AUTO.LAND lands in 2-4 s
-        self.wanted_m_s = (max(need.min_descent_m_s * cfg.descent_margin, need.land_speed_m_s)
-                           if need.min_descent_m_s > 0 else 0.0)
+        wanted = max(need.min_descent_m_s * cfg.descent_margin, need.land_speed_m_s) if need.min_descent_m_s > 0 else 0.0
+        self.wanted_m_s = min(wanted, max_down_m_s)
+        """What it asks; never more than the limiter lets through (``max_down_m_s``, the commands'
+        v_z_max): it comes after the limiter, so it keeps to the limiter's bounds itself."""
         self.window_steps = max(2, math.ceil(cfg.assist_after_s / period_s - 1e-9))
         self.evidence_steps = max(1, math.ceil(cfg.evidence_touchdown_s / period_s - 1e-9))
         self.below_height_m = max(0.0, pad_height_m) + cfg.assist_height_m

@@ -6,6 +6,7 @@ import pytest
 
 from companion.commands import JoystickCommand
 from companion.control.arbiter import Arbiter, Decision, Phase
+from companion.control.ask import AskAction
 from companion.inputs.base import HumanCommand
 
 PERSON = JoystickCommand(roll=0.5, pitch=0.25, yaw=0.0, throttle=-0.5)
@@ -132,3 +133,16 @@ def test_a_hold_inside_an_intervention_neither_ends_it_nor_records_it() -> None:
 def test_hold_must_be_a_bool() -> None:
     with pytest.raises(TypeError, match="hold"):
         HumanCommand(PERSON, override_held=False, hold=1)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("asked", [AskAction.HOLD, AskAction.LAND])
+@pytest.mark.parametrize("held", [False, True])
+def test_asking_for_help_holds_or_lands_over_both_and_records_nothing(asked: AskAction, held: bool) -> None:
+    """The vehicle holds where it asked, or lands unanswered: nobody's command flies, so nothing
+    is recorded or counted as recorded (a landing the person already holds the trigger over too)."""
+    arbiter = Arbiter()
+    d = arbiter.decide(Phase.INTERVENTION, human(held=held), POLICY, asked=asked)
+    assert (d.source, d.record, d.command) == (asked.value, False, JoystickCommand.neutral())
+    assert arbiter.summary().recorded_steps == 0
+    flying = arbiter.decide(Phase.INTERVENTION, human(held=held), POLICY, asked=AskAction.PERSON)
+    assert flying.source == ("human" if held else "policy")

@@ -7,7 +7,8 @@ from dataclasses import replace
 
 import pytest
 
-from companion.config import LandingConfig
+from companion.config import CompanionConfig, LandingConfig
+from companion.control.safety import SetpointLimiter
 from companion.control.sequences import take_off
 from companion.control.touchdown import TouchdownAssist, TouchdownNeed, touchdown_need
 from companion.errors import CommandRejected
@@ -214,3 +215,19 @@ def test_the_rangefinder_reading_is_folded_only_from_a_downward_sensor_in_its_ra
     assert _distance_sensor(msg(65519), 3.0)["ground_distance_m"] == 0.0  # PX4 SIH's -17 cm, wrapped: the surface
     assert _distance_sensor(msg(20000), 3.0)["ground_distance_m"] is None  # beyond its range: no reading
     assert _distance_sensor(msg(48, orientation=0), 3.0) == {}  # forward-looking: not the ground
+
+
+def test_the_assist_after_the_limiter_keeps_to_the_limiters_bounds() -> None:
+    """It comes after the limiter (a land detector needs a descent the rate limit would spread
+    out), so it must itself never ask for more than the limiter lets through: a vehicle whose
+    landing descent (2.5 m/s here) is above the commands' v_z_max gets v_z_max."""
+    cfg = CompanionConfig()
+    limiter = SetpointLimiter(cfg.commands, cfg.safety)
+    need = TouchdownNeed(0.275, "PX4 test", land_speed_m_s=2.5)
+    assist = TouchdownAssist(need, LandingConfig(), PERIOD_S, pad_height_m=1.5, home=HomeFrame(),
+                             max_down_m_s=limiter.max_down_m_s)
+    sent = [assist.apply(limiter.apply(SLOW, PERIOD_S), snap(down_m=0.0)) for _ in range(30)]
+    assert assist.engaged and max(sp.down_m_s for sp in sent) == cfg.commands.v_z_max_m_s
+    c = cfg.commands
+    bounds = (c.v_xy_max_m_s, c.v_xy_max_m_s, c.v_z_max_m_s, c.yaw_rate_max_rad_s)
+    assert all(abs(a) <= b for sp in sent for a, b in zip(sp.as_tuple(), bounds, strict=True))
