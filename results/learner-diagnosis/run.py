@@ -8,6 +8,7 @@ Steps, from the repository's root, each resumable (a policy whose output exists 
     python results/learner-diagnosis/run.py code                # the code the diagnosis runs: a clean export
     python results/learner-diagnosis/run.py verify [KEY ...]    # retrain: col experiment --verify --keep
     python results/learner-diagnosis/run.py fly [KEY ...]       # endpoints 1-3 on the identical reruns
+    python results/learner-diagnosis/run.py teacher-check [KEY ...]  # the shadow teacher replays its own labels
     python results/learner-diagnosis/run.py fit [KEY ...]       # endpoint 4 (converged, reseeded; each flown)
     python results/learner-diagnosis/run.py summarise           # summary.json and table.md
 
@@ -554,6 +555,58 @@ def fit(keys: list[str]) -> None:
             print(f"{key}: not yet rerun identically and flown (steps verify, fly)")
 
 
+# ----- a check of the shadow teacher: it replays its own labels -------------------------------------
+def teacher_check(keys: list[str]) -> None:
+    """teacher_check.jsonl: the teacher (built as in ``fly_policy``) reset as at training episode
+    k and fed the observations recorded in training episodes 0-2 (demonstrations in both
+    conditions), rebuilt from the dataset's normalised values (the pad's pixels from its three
+    entries, ``partial`` where its circle crosses the image's border, the time from ``time_s``):
+    how far its answers are from the recorded labels. Beside it, the final policy's own gap to
+    every label of its dataset (the same norm of the 4 sticks)."""
+    import numpy as np
+
+    from companion.app import RunOptions, build_human
+    from companion.inprocess import sitl_config_for
+    from companion.learning.checkpoint import load_checkpoint
+    from companion.learning.dataset import load_csv
+    from companion.vision.observation import Observation
+    from companion.vision.perception import PadDetection
+
+    out = HERE / "teacher_check.jsonl"
+    have = {json.loads(x)["key"] for x in out.read_text().splitlines()} if out.exists() else set()
+    done = verdicts()
+    for grid, key in chosen(keys):
+        if key in have or key not in done or not done[key]["identical"]:
+            continue
+        setup, cfg = trial_cfg(grid, key)
+        camera = sitl_config_for(RunOptions(config_path=setup.config_path, seed=0)).camera
+        w, h = camera.width_px, camera.height_px
+        train = kept(grid, key) / "trials" / key / "train"
+        rows = load_csv(train / "human.csv")
+        human = build_human(f"synthetic:{key.split('-')[0]}", cfg)
+        gaps = []
+        for episode in range(3):
+            human.reset()
+            mine = rows.episode == episode
+            for o, a, t in zip(rows.obs[mine].astype(float), rows.actions[mine], rows.time_s[mine], strict=True):
+                pad = None
+                if o[14] >= 0:
+                    u, v, r = o[12] * (w / 2) + (w - 1) / 2, o[13] * (h / 2) + (h - 1) / 2, o[14] * (h / 2)
+                    pad = PadDetection(u, v, r, bool(u - r < 0 or u + r > w - 1 or v - r < 0 or v + r > h - 1))
+                obs = Observation(tuple(o[0:3] * 10), tuple(o[3:6] * np.pi), tuple(o[6:9] * 5), tuple(o[9:12] * np.pi),
+                                  pad, (w, h), int(round(t * 1000)))
+                gaps.append(float(np.linalg.norm(human.read(obs).command.to_array() - a)))
+        final, _ = load_checkpoint(train / "checkpoints" / f"episode_{int(key.split('-')[2]) - 1:03d}.npz")
+        policy_gap = np.linalg.norm(final.act(rows.obs) - rows.actions, axis=1)
+        line = {"key": key, "grid": grid, "replayed_steps": len(gaps),
+                "teacher_gap_mean": round(float(np.mean(gaps)), 5), "teacher_gap_max": round(float(np.max(gaps)), 5),
+                "teacher_exact_share": round(float(np.mean(np.array(gaps) < 1e-3)), 4),
+                "policy_gap_on_training_mean": round(float(policy_gap.mean()), 5), "training_rows": len(rows.obs)}
+        with out.open("a") as fh:
+            fh.write(json.dumps(line) + "\n")
+        print(line, flush=True)
+
+
 # ----- the analysis ---------------------------------------------------------------------------------
 BOOT = 10_000  # paired bootstrap resamples over participants, seed 0
 KINDS = ("landed", "off_pad", "timeout", "fence")
@@ -801,7 +854,7 @@ def table(summary: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("step", choices=("code", "verify", "fly", "fit", "summarise"))
+    parser.add_argument("step", choices=("code", "verify", "fly", "teacher-check", "fit", "summarise"))
     parser.add_argument("keys", nargs="*", help="policies (e.g. P1-col-20-s0); default: all 24")
     args = parser.parse_args()
     if args.step == "code":
@@ -814,6 +867,8 @@ def main() -> None:
         verify(args.keys)
     elif args.step == "fly":
         fly(args.keys)
+    elif args.step == "teacher-check":
+        teacher_check(args.keys)
     elif args.step == "fit":
         fit(args.keys)
     else:
