@@ -712,6 +712,41 @@ def mcnemar(a: list[bool], b: list[bool]) -> dict:
     return {"landed": sum(b), "final_landed": sum(a), "gained": gained, "lost": lost, "p_exact": round(float(p), 4)}
 
 
+MIN_GROUP = 5  # a policy enters the failed-against-landed comparison with at least 5 of each
+
+
+def failed_vs_landed(eps: list[dict]) -> dict | None:
+    """Within one policy: the failed episodes' steps against the landed ones', by phase (the
+    teacher's gap, the nearest-neighbour distance) and the share of final-descent steps on which
+    the teacher acts from memory."""
+    failed = [e for e in eps if not e["success"]]
+    landed = [e for e in eps if e["success"]]
+    if len(failed) < MIN_GROUP or len(landed) < MIN_GROUP:
+        return None
+    out = {}
+    for label, group in (("landed", landed), ("failed", failed)):
+        final = _pool([e["by_phase"]["final"] for e in group])
+        approach = _pool([e["by_phase"]["approach"] for e in group])
+        memory = _pool([e["final_by_memory"]["remembered"] for e in group])
+        not_memory = _pool([e["final_by_memory"]["not"] for e in group])
+        out[label] = {"episodes": len(group), "gap_approach": approach["gap_norm"], "gap_final": final["gap_norm"],
+                      "nn_approach": approach["nn"], "nn_final": final["nn"],
+                      "gap_final_memory": memory["gap_norm"], "gap_final_not_memory": not_memory["gap_norm"],
+                      "final_memory_share": None if not final["steps"] else round(memory["steps"] / final["steps"], 4),
+                      "override_final": final["override_share"], "override_approach": approach["override_share"]}
+    return out
+
+
+def _boot_one(values: list[float], seed: int = 0) -> dict:
+    import numpy as np
+
+    x = np.array(values, float)
+    idx = np.random.default_rng(seed).integers(0, len(x), size=(BOOT, len(x)))
+    sample = x[idx].mean(axis=1)
+    return {"policies": len(x), "mean": round(float(x.mean()), 4),
+            "ci95": [round(float(np.percentile(sample, 2.5)), 4), round(float(np.percentile(sample, 97.5)), 4)]}
+
+
 def summarise() -> None:
     """summary.json (every figure of endpoints 1-4 so far) and table.md from the committed raw files."""
     import numpy as np
@@ -760,6 +795,21 @@ def summarise() -> None:
                                for c in CONDITIONS) for p in pairs}
             pooled[name] = _boot(values)
         summary["pooled"][grid] = pooled
+    summary["failed_vs_landed"] = {}
+    for grid in GRIDS:
+        within = {key: failed_vs_landed(_episodes(grid, key)) for g, key in POLICIES if g == grid and key in per}
+        within = {k: v for k, v in within.items() if v is not None}
+        if not within:
+            continue
+        figures = next(iter(within.values()))["landed"].keys() - {"episodes"}
+        pooled = {}
+        for name in sorted(figures):
+            pairs = [(v["landed"][name], v["failed"][name]) for v in within.values()
+                     if v["landed"][name] is not None and v["failed"][name] is not None]
+            if pairs:
+                pooled[name] = {"landed": _boot_one([a for a, _ in pairs]), "failed": _boot_one([b for _, b in pairs]),
+                                "failed_minus_landed": _boot_one([b - a for a, b in pairs])}
+        summary["failed_vs_landed"][grid] = {"policies": within, "pooled": pooled}
     for grid, key in POLICIES:
         final = _episodes(grid, key)
         record = HERE / "fit" / f"{key}.json"
@@ -835,6 +885,14 @@ def table(summary: dict) -> str:
             out.append(f"| {name} | {b['col']:.3f} [{b['col_ci95'][0]:.3f}, {b['col_ci95'][1]:.3f}] | "
                        f"{b['demo']:.3f} [{b['demo_ci95'][0]:.3f}, {b['demo_ci95'][1]:.3f}] | "
                        f"{b['col_minus_demo']:+.3f} [{b['col_minus_demo_ci95'][0]:+.3f}, {b['col_minus_demo_ci95'][1]:+.3f}] |")
+    for grid, block in summary["failed_vs_landed"].items():
+        out += ["", f"## Failed against landed episodes within a policy: {grid} (policies with at least {MIN_GROUP} of each: "
+                f"{', '.join(block['policies'])}; mean over them, 95 % bootstrap over policies)", "",
+                "| figure | landed | failed | failed - landed |", "| --- | --- | --- | --- |"]
+        for name, b in block["pooled"].items():
+            out.append(f"| {name} ({b['landed']['policies']}) | {b['landed']['mean']:.3f} [{b['landed']['ci95'][0]:.3f}, {b['landed']['ci95'][1]:.3f}] | "
+                       f"{b['failed']['mean']:.3f} [{b['failed']['ci95'][0]:.3f}, {b['failed']['ci95'][1]:.3f}] | "
+                       f"{b['failed_minus_landed']['mean']:+.3f} [{b['failed_minus_landed']['ci95'][0]:+.3f}, {b['failed_minus_landed']['ci95'][1]:+.3f}] |")
     if summary["stability"]:
         out += ["", "## Endpoint 4: converged and reseeded policies against the final one (landed of 100, paired by start; exact McNemar)", "",
                 "| policy | final | converged (gained / lost, p) | reseeded 1-5 | reseed spread | converged at update | held-out loss | loss_all final / converged |",
