@@ -9,7 +9,7 @@ the messages themselves:
   from the same configuration (:func:`~companion.inprocess.inprocess_config`);
 - a frame is the server's lockstep frame: ``frame_steps`` FDM steps, then the streams that the
   server's :class:`~sitl.telemetry.TelemetryScheduler` says are due, then the frame marker
-  (SYSTEM_TIME); the image is the server's :func:`~sitl.server.render_frame` (pixel noise and
+  (SYSTEM_TIME); the image is the server's :func:`~sitl.camera_feed.render_frame` (pixel noise and
   camera latency included), decoded from JPEG when the stream would be;
 - what the link would hold after the frame is a :class:`~companion.link.base.VehicleSnapshot`
   with the fields the companion's telemetry handlers (:mod:`companion.link.telemetry`) set from
