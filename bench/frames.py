@@ -24,8 +24,9 @@ import time
 import numpy as np
 from machine_ref import machine_ref_rt
 
+from colcommon.frames import Frame
 from companion.learning.runners import ControlTickGuard
-from sitl.frames import Frame, FrameServer
+from sitl.frames import FrameServer
 
 
 def publish_to_a_stalled_reader(seconds: float) -> dict[str, float | bool]:

@@ -30,10 +30,10 @@ import cv2
 import numpy as np
 from machine_ref import machine_ref_rt
 
+from colcommon.frames import Frame, decode_frame, encode_frame
 from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
-from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.world import World
 
 TOUCHDOWN_HEIGHT_M = 0.3  # camera above the pad when the landing gear touches it

@@ -38,6 +38,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from colcommon.frames import Frame, decode_frame, encode_frame
 from companion.app import RunOptions, Vehicle
 from companion.config import CompanionConfig, LinkConfig
 from companion.errors import ConfigError, SimulatorError
@@ -49,7 +50,6 @@ from companion.link.wire_copy import wire_copy
 from companion.shared_facts import check_shared_facts
 from companion.simulator import SimulatorClient
 from sitl.config import SitlConfig, load_sitl_config
-from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.handler import Outgoing
 from sitl.server import SitlServer
 from sitl.transports import MavClient

@@ -25,12 +25,11 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
+from colcommon.camera_geometry import CAM_FROM_BODY, pinhole_matrix, rotation_ned_from_body
 from sitl import pad_marker
 from sitl.config import CameraConfig
 from sitl.world import World
 
-# Camera axes (right, down, optical) expressed in body FRD axes: u = body +y, v = body -x.
-CAM_FROM_BODY = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 _MIN_DEPTH_M = 1e-3
 _MIN_HEIGHT_M = 0.02
 _WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
@@ -141,21 +140,7 @@ def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radiu
 
 def camera_matrix(cfg: CameraConfig) -> np.ndarray:
     """The pinhole intrinsics K of the module doc (the renderer's; a detector's for its frames)."""
-    f = (cfg.width_px / 2.0) / np.tan(np.radians(cfg.hfov_deg) / 2.0)
-    return np.array([[f, 0.0, (cfg.width_px - 1) / 2.0], [0.0, f, (cfg.height_px - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def rotation_ned_from_body(attitude_rad: ArrayLike) -> np.ndarray:
-    """Body FRD -> NED rotation from roll, pitch, yaw (aerospace ZYX order)."""
-    roll, pitch, yaw = (float(a) for a in np.asarray(attitude_rad, dtype=float).reshape(3))
-    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    return pinhole_matrix(cfg.width_px, cfg.height_px, cfg.hfov_deg)
 
 
 class CameraRenderer:

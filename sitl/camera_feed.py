@@ -16,8 +16,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.config import SitlConfig
 
 if TYPE_CHECKING:
+    from colcommon.frames import Frame
     from sitl.camera import CameraRenderer
-    from sitl.frames import Frame
     from sitl.vehicle import SimVehicle
 
 M = mavlink
@@ -82,7 +82,7 @@ class CameraFeed:
             self.publish(blocking)
 
     def publish(self, blocking: bool) -> None:
-        from sitl.frames import Frame
+        from colcommon.frames import Frame
 
         rtp = self.rtp if self.rtp is not None and self.rtp.alive else None
         if self.server.client_count == 0 and rtp is None:

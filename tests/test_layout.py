@@ -172,3 +172,16 @@ def test_the_readme_stays_short_and_its_links_resolve() -> None:
             if "://" not in target and not target.startswith("mailto:") and not (page.parent / target).exists():
                 broken.append(f"{page.relative_to(REPO)} -> {target}")
     assert broken == []
+
+
+FLIGHT_RUNTIME = ("companion.link", "companion.vision.observer", "companion.vision.camera", "companion.control",
+                  "companion.console.frames", "companion.inputs", "companion.learning", "companion.commands")
+"""The companion's modules that fly: they share messages with the SITL through colcommon, and
+import nothing of sitl (the rendered camera, the camera bridge, the console's RTP video, the
+in-process SITL and the wiring may: they run our SITL's code on purpose)."""
+
+
+def test_the_flight_runtime_imports_nothing_of_the_sitl() -> None:
+    bad = sorted(f"{m} -> {t}" for m, targets in import_graph().items() if m.startswith(FLIGHT_RUNTIME)
+                 for t in targets if t.split(".")[0] == "sitl")
+    assert bad == []

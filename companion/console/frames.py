@@ -16,8 +16,8 @@ from collections.abc import Callable
 
 import cv2
 
+from colcommon.frames import Frame
 from companion.vision.camera import CameraSource
-from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
 FRAME_HEADER = struct.Struct("<IId")

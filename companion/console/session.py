@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from colcommon.frames import Frame
 from companion.app import CONDITIONS, RunOptions, RunResult, Vehicle, run_episodes, write_pictures
 from companion.config import CompanionConfig
 from companion.console.frames import FramePump
@@ -38,7 +39,6 @@ from companion.inputs.browser import BrowserInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
 from companion.pictures.recorder import FlightRecorder
-from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
 Publish = Callable[[dict[str, Any]], None]

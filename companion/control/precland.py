@@ -16,13 +16,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from colcommon.frames import Frame
 from companion.errors import CommandRejected, LinkTimeout
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect
 from companion.link.landing_target import LandingTarget, landing_target
 from companion.vision.aruco import ArucoPadDetector
 from companion.vision.camera import CameraSource, SitlCameraSource
-from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
 

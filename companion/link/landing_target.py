@@ -54,7 +54,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-from sitl.camera import CAM_FROM_BODY, rotation_ned_from_body
+from colcommon.camera_geometry import CAM_FROM_BODY, rotation_ned_from_body
 
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12

@@ -42,6 +42,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 import companion.link.px4_modes as px4_modes
+from colcommon.frames import Frame, decode_frame, encode_frame
 from companion.config import LinkConfig
 from companion.errors import ConfigError, LinkTimeout, SimulatorError
 from companion.inprocess import inprocess_config
@@ -53,7 +54,6 @@ from sitl.camera_feed import render_frame
 from sitl.clock import frame_steps
 from sitl.config import SitlConfig
 from sitl.control_surface import RequestError, handle_request, truth
-from sitl.frames import Frame, decode_frame, encode_frame
 from sitl.handler import AUTOPILOT
 from sitl.offboard import TargetFields
 from sitl.personality import make_vehicle

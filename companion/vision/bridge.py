@@ -17,11 +17,12 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from colcommon.frames import Frame
 from companion.config import load_companion_config
 from companion.link import open_link
 from companion.vision.rendered import RenderedCamera
 from sitl.config import load_sitl_config
-from sitl.frames import Frame, FrameServer
+from sitl.frames import FrameServer
 
 log = logging.getLogger(__name__)
 

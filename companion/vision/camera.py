@@ -20,8 +20,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from colcommon.frames import Frame, read_frame
 from companion.errors import CameraError
-from sitl.frames import Frame, read_frame
 
 log = logging.getLogger(__name__)
 SITL_SCHEME = "colf://"

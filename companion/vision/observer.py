@@ -12,11 +12,11 @@ import logging
 import time
 from collections import deque
 
+from colcommon.frames import Frame
 from companion.link.base import VehicleSnapshot
 from companion.vision.camera import CameraSource
 from companion.vision.observation import Observation
 from companion.vision.perception import PadDetection, PadDetector
-from sitl.frames import Frame
 
 log = logging.getLogger(__name__)
 WARN_EVERY_S = 5.0

@@ -27,11 +27,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from colcommon.frames import Frame
 from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
-from sitl.frames import Frame
 from sitl.world import World
 
 log = logging.getLogger(__name__)

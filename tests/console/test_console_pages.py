@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from aiohttp import web
 
+from colcommon.frames import Frame
 from companion.console.frames import encode_for_page
 from companion.console.server import ConsoleServer
-from sitl.frames import Frame
 from tests.console.test_console_browser import (
     CHROMIUM,
     CHROMIUM_ARGS,

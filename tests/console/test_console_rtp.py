@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from colcommon.frames import Frame
 from companion.config import CompanionConfig
 from companion.console.session import ConsoleOptions, ConsoleSession
-from sitl.frames import Frame
 from sitl.rtp import sdp_for
 from tests.conftest import free_port
 from tests.console.test_console_browser import REPO

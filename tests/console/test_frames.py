@@ -7,8 +7,8 @@ import time
 import cv2
 import numpy as np
 
+from colcommon.frames import Frame
 from companion.console.frames import FramePump, decode_header, encode_for_page
-from sitl.frames import Frame
 
 
 class FakeCamera:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from colcommon.frames import Frame
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig, LinkConfig
 from companion.control.arbiter import Phase
@@ -36,7 +37,6 @@ from companion.vision.perception import PadDetector
 from companion.vision.rendered import RenderedCamera
 from sitl.camera import CameraRenderer, camera_matrix
 from sitl.config import CameraConfig, WorldConfig
-from sitl.frames import Frame
 from sitl.world import World
 
 MARKED = CameraConfig(pad_marker="aruco")

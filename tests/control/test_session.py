@@ -435,7 +435,7 @@ def test_steps_on_stale_telemetry_hold_and_record_nothing(lockstep: bool, monkey
 
 
 def test_a_step_without_its_camera_frame_flies_but_is_not_recorded() -> None:
-    from sitl.frames import Frame
+    from colcommon.frames import Frame
 
     class GappyCamera:
         """A camera whose frames 4-6 never come (a stalled stream)."""

@@ -12,6 +12,14 @@ import cv2
 import numpy as np
 import pytest
 
+from colcommon.frames import (
+    HEADER_SIZE,
+    Frame,
+    decode_frame,
+    decode_header,
+    encode_frame,
+    read_frame,
+)
 from companion.errors import CameraError
 from companion.vision.camera import (
     OpenCVCameraSource,
@@ -19,15 +27,7 @@ from companion.vision.camera import (
     open_camera,
     parse_colf_uri,
 )
-from sitl.frames import (
-    HEADER_SIZE,
-    Frame,
-    FrameServer,
-    decode_frame,
-    decode_header,
-    encode_frame,
-    read_frame,
-)
+from sitl.frames import FrameServer
 from tests.conftest import free_port, wait_until
 
 

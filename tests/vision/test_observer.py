@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
+from colcommon.frames import Frame
 from companion.link.base import VehicleSnapshot
 from companion.vision.observation import PAD_NOT_VISIBLE
 from companion.vision.observer import STALE_AFTER_TICKS, Observer
 from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
-from sitl.frames import Frame
 from sitl.world import World
 
 

@@ -3,11 +3,11 @@ detection on that frame)."""
 
 from __future__ import annotations
 
+from colcommon.frames import Frame
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
-from sitl.frames import Frame
 from sitl.world import World
 from tests.vision.test_observer import StuckCamera, snapshot
 
