@@ -20,36 +20,23 @@ Every control step of ``EpisodeRunner._fly`` maps to a batched step of one lane 
 =====================================================  ===============================================
 session (``EpisodeRunner``)                            batched (:class:`BatchedEvaluator`)
 =====================================================  ===============================================
-``run``: limiter reset, ``_start(seed)``: reset,       ``LandingLane.begin(seed, attempts=1)``: the
-frames until in the air, one HOLD, OFFBOARD            same frames and requests; the lane's limiter
-                                                       memory cleared
-step > 0 and landed state ON_GROUND: "touchdown",      the same test on the lane's latest snapshot,
-``steps`` = step                                       before the step
-``observer.observe(snap, lockstep,                     :func:`~companion.rl.batched_env.telemetry_row`
-home.relative(snap)).to_vector()``: the position       with ``lane.home.relative(snap)`` (the home
-*relative to home*                                     frame fed with the same frames),
-                                                       :func:`~companion.rl.batched_env.pad_rows`,
-                                                       :func:`~companion.vision.observation.normalised`
-a vector that is not finite: HOLD, no policy, the      the same (``LandingEnv`` repeats the last
-step counts, version None                              observation instead: not here)
-``fence.check(obs.position_ned_m)`` outside: HOLD,     the same, on the same relative position,
-hold mode, "fence", ``steps`` = step + 1, version      before the policy acts (also at step 0)
-None
+``run``: limiter reset, ``starter.start(seed)``:       ``LandingLane.begin(seed, attempts=1)``: the
+reset, frames until in the air, one HOLD, OFFBOARD     same frames and requests; the limiter row forgot
+each frame judged before its step (time, touchdown,    the very same :func:`~companion.control.outcome.
+fence): :mod:`companion.control.outcome`               judge_snapshot`; a fence exit sends HOLD and the
+                                                       hold mode and counts as a step, as there
+``observer.observe(...).to_vector()``, the position    :mod:`companion.vision.observation_rows` on the
+relative to home                                       lane's snapshot and home; a vector that is not
+                                                       finite holds, version None, as there
 ``disagreement(snapshot, vector)``                     the very same call, one vector at a time (no
                                                        stacked matmul: gemm and gemv may round apart)
-``mapper.command_from_values(action)``                 valid rows as they are (sanitize would not
-                                                       change them); a row with a non-finite or
-                                                       out-of-range value through the lane's own mapper
-``limiter.apply(mapper.to_setpoint(command))``         ``CommandMapper.physical``, ``body_velocity``,
-                                                       ``SetpointLimiter.clipped``/``rate_limited`` on
-                                                       the stack, each lane's last setpoint its own
-``link.send_velocity_body``                            the link's limits, then the setpoint as the
-                                                       wire delivers it (float32)
+``mapper.command_from_values(action)``                 valid rows as they are; a row with a non-finite
+                                                       or out-of-range value through the lane's mapper
+``limiter.apply(mapper.to_setpoint(command))``, the    :class:`~companion.control.setpoint_rows.
+link's limits                                          SetpointRows`, each lane's memory its own
 the next lockstep frame                                ``LandingLane.next_frame``
-after ``max_steps`` steps: "timeout" (the last         the same: the frame after the last step is
-frame is not tested for a touchdown)                   not tested either
-``_record``: success, distance and speed from the      the lane's ``truth()``, the same JSON round trip
-simulator's ``truth()["touchdown"]``
+the record's score: :func:`~companion.control.         the same function on the lane's ``truth()``
+outcome.score` on the simulator's truth                (the same JSON round trip)
 =====================================================  ===============================================
 
 The 2-action ``LandingEnv`` holds the throttle at a constant descent and turns no yaw; here the
