@@ -29,8 +29,9 @@ from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.ask import HelpAsker
 from companion.control.precland import PrecisionLander
+from companion.control.records import EpisodeRecord
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRecord, EpisodeRunner
+from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint

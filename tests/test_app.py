@@ -17,7 +17,7 @@ from companion.app import (
     run_episodes,
 )
 from companion.config import CompanionConfig
-from companion.control.session import EpisodeRecord
+from companion.control.records import EpisodeRecord
 from companion.errors import CameraError, CheckpointError, ConfigError
 from companion.learning.dataset import load_csv
 from companion.link.dialect import ARDUPILOT, PX4

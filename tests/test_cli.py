@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from companion import cli
 from companion.app import RunOptions, RunResult
-from companion.control.session import EpisodeRecord
+from companion.control.records import EpisodeRecord
 from companion.learning.dataset import load_csv
 from tests.conftest import wait_until
 

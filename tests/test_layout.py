@@ -108,7 +108,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("config", "run_folder", "simulator", "statistics"),
     ("errors",),
 )
-EPISODE_CORE = ("companion.control.outcome", "companion.control.setpoint_rows")
+EPISODE_CORE = ("companion.control.outcome", "companion.control.setpoint_rows", "companion.control.arbiter",
+                "companion.control.records")
 """The episode core: one rule for how an episode ends and is scored, one setpoint arithmetic;
 the drivers (the session in companion.control.session, the env, the batched env, the batched
 evaluation) sit above it."""

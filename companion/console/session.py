@@ -32,7 +32,7 @@ from companion.console.frames import FramePump
 from companion.console.study import ConsoleStudy
 from companion.control.arbiter import Phase
 from companion.control.gaps import Gap
-from companion.control.session import EpisodeRecord, StepView
+from companion.control.records import EpisodeRecord, StepView
 from companion.errors import ColError, ConfigError
 from companion.experiment.study import Block
 from companion.inputs.browser import BrowserInput

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.config import CompanionConfig
-from companion.control.session import EpisodeRecord
+from companion.control.records import EpisodeRecord
 from companion.errors import ConfigError
 from companion.experiment.grid import ExperimentSetup
 from companion.experiment.runner import evaluate_checkpoint, trial_config, trial_result

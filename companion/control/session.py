@@ -19,15 +19,15 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
-from companion.control.arbiter import Arbiter, Decision, Phase
+from companion.control.arbiter import Arbiter, Phase
 from companion.control.ask import AskAction, AskEvent, HelpAsker
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
@@ -35,6 +35,7 @@ from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Ga
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander, precland_time_is_up
+from companion.control.records import EpisodeRecord, StepView
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
 from companion.control.touchdown import TouchdownAssist, touchdown_evidence, touchdown_need
@@ -49,7 +50,6 @@ from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
 from companion.link.truth import true_distance_m
 from companion.simulator import SimulatorClient
-from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
@@ -68,23 +68,6 @@ class PolicyRunner(Protocol):
     def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot: ...
 
 
-@dataclass(frozen=True)
-class StepView:
-    """What one control step saw and did, for someone watching (a console, a video)."""
-
-    episode: int
-    step: int
-    phase: Phase
-    observation: Observation
-    decision: Decision
-    setpoint: VelocitySetpoint
-    policy_version: int | None
-    human_override: bool
-    human_hold: bool
-    frame_number: int | None = None
-    """The camera frame the observation's pad was detected in (None: none)."""
-
-
 class EpisodeControl(Protocol):
     """An operator's hand on a running session (the console): watches each step and may end
     the episode or the run. ``run`` calls ``end_requested`` every step; a reason ends the
@@ -97,48 +80,6 @@ class EpisodeControl(Protocol):
         again (None); called when that changes (companion/control/gaps.py)."""
 
     def end_requested(self) -> str | None: ...
-
-
-@dataclass(frozen=True)
-class EpisodeRecord:
-    """One JSON line per episode (runs/<run>/episodes.jsonl)."""
-
-    episode: int
-    phase: str
-    seed: int | None
-    steps: int
-    human_samples: int
-    interventions: int
-    intervention_s: float
-    intervention_durations_s: tuple[float, ...]
-    outcome: str  # touchdown | timeout | fence | link_lost | error | stopped (by the operator)
-    success: bool | None
-    touchdown_distance_m: float | None
-    touchdown_speed_m_s: float | None
-    policy_version: int | None
-    dataset_size: int
-    sim_time_s: float
-    wall_time_s: float
-    notes: tuple[str, ...] = field(default_factory=tuple)
-    loss_all: float | None = None
-    """After the episode (and the learner's between-episode updates): the policy's MSE on
-    every human sample, and on the intervention samples alone (None: none recorded)."""
-    loss_intervention: float | None = None
-    requests: int = 0
-    """Requests for help in this episode (``[companion.ask]``), and how many went unanswered."""
-    requests_unanswered: int = 0
-    supervised_steps: int = 0
-    """Steps the person had to watch: every step of a demonstration, and of an intervention
-    episode flown by a person who watches throughout; for a person who watches only when
-    asked, the steps from each request until they handed back."""
-    ask_threshold: float | None = None
-    """The disagreement threshold of this episode (None: not asking)."""
-    true_touchdown_distance_m: float | None = None
-    """Without a simulator: the touchdown's true distance from the pad where the autopilot's SITL
-    sends its true position (companion/link/truth.py); the estimate's is touchdown_distance_m."""
-
-    def to_json_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass

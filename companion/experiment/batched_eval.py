@@ -55,7 +55,7 @@ setpoints. The records, rounded as the session rounds them, come out the same
 committed trials record for record; committed trials rerun byte for byte, bench/README.md).
 
 Records (``eval_episodes.jsonl``): :class:`EvalEpisode` has every field of the session's
-:class:`~companion.control.session.EpisodeRecord` with the same values, in the same order, but
+:class:`~companion.control.records.EpisodeRecord` with the same values, in the same order, but
 ``wall_time_s``: lanes fly episodes interleaved, and what one took of the machine's time is no
 property of the episode; it is left out rather than made up.
 
@@ -83,7 +83,7 @@ from companion.app import RunOptions
 from companion.config import CompanionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Phase
-from companion.control.session import EpisodeRecord
+from companion.control.records import EpisodeRecord
 from companion.control.setpoint_rows import SetpointRows
 from companion.errors import ColError, SessionOnly
 from companion.inprocess import one_opencv_thread, sitl_config_for

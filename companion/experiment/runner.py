@@ -42,7 +42,7 @@ from companion.experiment.tasks import CONFIG_COPY, RunFn, init_worker, run_trai
 
 if TYPE_CHECKING:
     from companion.app import RunResult
-    from companion.control.session import EpisodeRecord
+    from companion.control.records import EpisodeRecord
     from companion.experiment.batched_eval import BatchedEvaluation
 
 log = logging.getLogger(__name__)

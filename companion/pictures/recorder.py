@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from companion.control.arbiter import Phase
-from companion.control.session import StepView
+from companion.control.records import StepView
 from companion.vision.perception import PadDetection
 
 

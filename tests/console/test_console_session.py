@@ -22,7 +22,7 @@ from companion.console.session import (
     step_message,
 )
 from companion.control.arbiter import Decision, Phase
-from companion.control.session import StepView
+from companion.control.records import StepView
 from companion.errors import ConfigError
 from companion.learning.dataset import HumanDataset, Sample, Source, load_csv
 from companion.link.setpoints import VelocitySetpoint

@@ -30,7 +30,7 @@ import pytest
 from companion.app import RunResult
 from companion.commands import CommandMapper
 from companion.config import LearnerConfig
-from companion.control.session import EpisodeRecord
+from companion.control.records import EpisodeRecord
 from companion.errors import CheckpointError, LinkError, SessionOnly
 from companion.experiment import batched_eval
 from companion.experiment.batched_eval import (
