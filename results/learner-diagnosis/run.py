@@ -895,12 +895,12 @@ def table(summary: dict) -> str:
                        f"{b['failed_minus_landed']['mean']:+.3f} [{b['failed_minus_landed']['ci95'][0]:+.3f}, {b['failed_minus_landed']['ci95'][1]:+.3f}] |")
     if summary["stability"]:
         out += ["", "## Endpoint 4: converged and reseeded policies against the final one (landed of 100, paired by start; exact McNemar)", "",
-                "| policy | final | converged (gained / lost, p) | reseeded 1-5 | reseed spread | converged at update | held-out loss | loss_all final / converged |",
+                "| policy | final | converged (gained / lost, p) | reseeded 1-5 (p against the final) | reseed spread | converged at update | held-out loss | loss_all final / converged |",
                 "| --- | ---: | --- | --- | --- | ---: | ---: | --- |"]
         for key, e in summary["stability"].items():
             c = e["converged"]
             conv = "-" if c is None else f"{c['landed']} (+{c['gained']} / -{c['lost']}, p {c['p_exact']:.3f})"
-            rs = ", ".join(f"{r['landed']}" for r in e["reseeds"]) or "-"
+            rs = ", ".join(f"{r['landed']} (p {r['p_exact']:.3f})" for r in e["reseeds"]) or "-"
             spread = e.get("reseed_spread")
             fit = e["fit"]
             out.append(f"| {key} | {e['final']} | {conv} | {rs} | "
