@@ -54,8 +54,8 @@ def truth(v: SimVehicle) -> dict[str, Any]:
 def failsafe_times(v: SimVehicle) -> dict[str, float | None]:
     """Simulation times of the last offboard setpoint and of the offboard-loss failsafe, so a
     test can measure setpoint loss -> hold exactly (docs/reliability.md)."""
-    last = getattr(v, "_last_offboard_s", None)
-    since = getattr(v, "_failsafe_since_s", None)
+    last = v.status.last_offboard_s
+    since = v.status.failsafe_since_s
     return {
         "time_s": round(v.time_s, 6),
         "last_setpoint_s": None if last is None or last != last or abs(last) == float("inf") else round(last, 6),

@@ -134,10 +134,15 @@ class Script:
                 return elapsed
         return None
 
-    def _param(self, name: str) -> float | None:
-        self.mav.mav.param_request_read_send(self.mav.target_system, 1, name.encode(), -1)
-        msg = self._pump(3.0, lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
-        return None if msg is None else float(msg.param_value)
+    def _param(self, name: str, attempts: int = 4) -> float | None:
+        """PARAM_REQUEST_READ, asked again when no answer comes within 3 s: over UDP a request
+        or its PARAM_VALUE can be lost, and a starved autopilot answers late."""
+        for _ in range(attempts):
+            self.mav.mav.param_request_read_send(self.mav.target_system, 1, name.encode(), -1)
+            msg = self._pump(3.0, lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
+            if msg is not None:
+                return float(msg.param_value)
+        return None
 
     # ----- the script -------------------------------------------------------------------------
     def run(self, armable_timeout_s: float = 120.0) -> Outcome:
