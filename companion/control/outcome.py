@@ -5,6 +5,9 @@ env and the batched evaluation all judge each new frame with :func:`judge_frame`
 ended episode with :func:`score`; nothing else decides an outcome or a success. Pure: the drivers
 bring the facts (steps taken, the landed state, the fence's verdict, the simulator's touchdown).
 
+Without a simulator, :func:`score_estimate` scores a touchdown on what the vehicle offers: its
+position relative to home (and its autopilot's truth beside it), with the notes for the record.
+
 The order of :func:`judge_frame` is the session's: the time limit first (a frame after the last
 step is not looked at), then a touchdown (never on the episode's first frame: the vehicle may
 still stand from the reset), then the geofence, which is not judged on telemetry that is not
@@ -102,3 +105,22 @@ def score(outcome: str, *, simulated: bool, touchdown: Mapping[str, Any] | None 
         success = None if judge_radius_m is None else estimated_distance_m <= judge_radius_m
         return Score(success, _rounded(estimated_distance_m), None, _rounded(true_distance_m))
     return Score(success=False if judge_radius_m is not None and not landed else None)
+
+
+def score_estimate(outcome: str, relative_ned_m: tuple[float, float, float] | None,
+                   pad_ned_m: tuple[float, float, float], *, home_known: bool, true_distance_m: float | None = None,
+                   judge_radius_m: float | None = None) -> tuple[Score, list[str]]:
+    """:func:`score` without a simulator, and the record's notes on how it was scored: a
+    touchdown's distance estimated from the vehicle's last position relative to home
+    (``relative_ned_m``; None: no telemetry; ``home_known`` False: from z = 0, no HOME_POSITION),
+    ``true_distance_m`` beside it where the autopilot's SITL sends truth (companion/link/truth.py)."""
+    if relative_ned_m is None or outcome != TOUCHDOWN:
+        return score(outcome, simulated=False, judge_radius_m=judge_radius_m), []
+    north, east, _ = relative_ned_m
+    estimate = math.hypot(north - pad_ned_m[0], east - pad_ned_m[1])
+    notes = ["touchdown distance estimated from the vehicle's position relative to home" if home_known else
+             "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)"]
+    if judge_radius_m is not None:
+        notes.append("success judged from the vehicle's reported position (the rendered pad is where it puts it)")
+    return score(outcome, simulated=False, estimated_distance_m=estimate, true_distance_m=true_distance_m,
+                 judge_radius_m=judge_radius_m), notes

@@ -473,19 +473,13 @@ class EpisodeRunner:
                 notes.append(f"no ground truth: {exc}")
                 touchdown = None
             return outcome_rule.score(outcome, simulated=True, touchdown=touchdown)
-        estimate = true_distance = None
-        if snap is not None and outcome == outcome_rule.TOUCHDOWN:
-            pad = self.p.cfg.pad_ned_m
-            north, east, _ = self.home.relative(snap)
-            estimate = math.hypot(north - pad[0], east - pad[1])
-            notes.append("touchdown distance estimated from the vehicle's position relative to home"
-                         if self.home.origin is not None else
-                         "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)")
-            true_distance = true_distance_m(snap, (pad[0], pad[1]))
-            if self.p.judge_radius_m is not None:
-                notes.append("success judged from the vehicle's reported position (the rendered pad is where it puts it)")
-        return outcome_rule.score(outcome, simulated=False, estimated_distance_m=estimate,
-                                  true_distance_m=true_distance, judge_radius_m=self.p.judge_radius_m)
+        pad = self.p.cfg.pad_ned_m
+        result, said = outcome_rule.score_estimate(
+            outcome, self.home.relative(snap) if snap is not None else None, pad,
+            home_known=self.home.origin is not None, judge_radius_m=self.p.judge_radius_m,
+            true_distance_m=true_distance_m(snap, (pad[0], pad[1])) if snap is not None else None)
+        notes.extend(said)
+        return result
 
     def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,

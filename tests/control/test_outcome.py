@@ -24,6 +24,7 @@ from companion.control.outcome import (
     judge_frame,
     judge_snapshot,
     score,
+    score_estimate,
 )
 from companion.control.safety import FenceStatus, Geofence
 from companion.experiment.batched_eval import evaluate_batched
@@ -88,6 +89,27 @@ def test_scores_by_estimate_with_and_without_a_judge() -> None:
     assert score(TOUCHDOWN, simulated=False, estimated_distance_m=0.31).success is None  # nobody judges
     assert score(TIMEOUT, simulated=False, judge_radius_m=0.5) == Score(success=False)
     assert score(TIMEOUT, simulated=False) == Score()
+
+
+PAD = (1.0, 2.0, -1.5)
+
+
+def test_an_estimated_touchdown_is_scored_from_home_and_says_how() -> None:
+    result, notes = score_estimate(TOUCHDOWN, (4.0, 6.0, -0.1), PAD, home_known=True, true_distance_m=5.123456,
+                                   judge_radius_m=5.5)
+    assert result == Score(True, 5.0, None, 5.1235)  # 3-4-5 from the pad; the truth beside it
+    assert notes == ["touchdown distance estimated from the vehicle's position relative to home",
+                     "success judged from the vehicle's reported position (the rendered pad is where it puts it)"]
+    result, notes = score_estimate(TOUCHDOWN, (4.0, 6.0, -0.1), PAD, home_known=False)
+    assert result == Score(None, 5.0, None, None)  # nobody judges
+    assert notes == ["touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)"]
+
+
+def test_no_estimate_without_a_touchdown_or_telemetry() -> None:
+    assert score_estimate(TIMEOUT, (1.0, 2.0, -3.0), PAD, home_known=True, true_distance_m=0.1,
+                          judge_radius_m=0.5) == (Score(success=False), [])
+    assert score_estimate(TOUCHDOWN, None, PAD, home_known=True, judge_radius_m=0.5) == (Score(), [])
+    assert score_estimate(FENCE, None, PAD, home_known=True) == (Score(), [])
 
 
 # ----- every driver flies by it ----------------------------------------------------------------
