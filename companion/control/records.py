@@ -6,10 +6,13 @@ wall time); a console, a video and the reports read them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from companion.control.arbiter import Decision, Phase
+from companion.control.arbiter import Decision, InterventionSummary, Phase
+from companion.control.ask import AskSummary
+from companion.control.outcome import Score
 from companion.link.setpoints import VelocitySetpoint
 from companion.vision.observation import Observation
 
@@ -69,6 +72,29 @@ class EpisodeRecord:
     true_touchdown_distance_m: float | None = None
     """Without a simulator: the touchdown's true distance from the pad where the autopilot's SITL
     sends its true position (companion/link/truth.py); the estimate's is touchdown_distance_m."""
+
+    @classmethod
+    def of_episode(cls, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str, result: Score, *,
+                   involvement: InterventionSummary, control_period_s: float, policy_version: int | None,
+                   dataset_size: int, sim_time_s: float, wall_time_s: float, notes: list[str],
+                   ask: AskSummary | None, supervised_steps: int, ask_threshold: float | None) -> EpisodeRecord:
+        """The record of an ended episode, scored ``result`` (companion/control/outcome.py): the
+        person's involvement as the arbiter counted it, the requests for help (``ask`` None: not
+        asking; an ``ask_threshold`` that is not finite is none), times rounded to the millisecond."""
+        durations = involvement.durations_s(control_period_s)
+        return cls(
+            episode=episode, phase=phase.value, seed=seed, steps=steps,
+            human_samples=involvement.recorded_steps, interventions=involvement.interventions,
+            intervention_s=round(sum(durations), 3), intervention_durations_s=tuple(round(d, 3) for d in durations),
+            outcome=outcome, success=result.success,
+            touchdown_distance_m=result.distance_m, touchdown_speed_m_s=result.speed_m_s,
+            policy_version=policy_version, dataset_size=dataset_size,
+            sim_time_s=round(sim_time_s, 3), wall_time_s=round(wall_time_s, 3), notes=tuple(notes),
+            requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
+            supervised_steps=supervised_steps,
+            true_touchdown_distance_m=result.true_distance_m,
+            ask_threshold=None if ask_threshold is None or not math.isfinite(ask_threshold) else round(ask_threshold, 8),
+        )
 
     def to_json_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -484,22 +484,13 @@ class EpisodeRunner:
     def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
                 notes: list[str]) -> EpisodeRecord:
-        summary = self.arbiter.summary()
-        ask = self.help.summary if self.help is not None else None
         result = self._score(outcome, snap, notes)
-        durations = summary.durations_s(self.period_s)
-        sim_s = ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0
-        return EpisodeRecord(
-            episode=episode, phase=phase.value, seed=seed, steps=steps,
-            human_samples=summary.recorded_steps, interventions=summary.interventions,
-            intervention_s=round(sum(durations), 3), intervention_durations_s=tuple(round(d, 3) for d in durations),
-            outcome=outcome, success=result.success,
-            touchdown_distance_m=result.distance_m, touchdown_speed_m_s=result.speed_m_s,
-            policy_version=version, dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
-            sim_time_s=round(sim_s, 3), wall_time_s=round(time.monotonic() - wall0, 3), notes=tuple(notes),
-            requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
+        return EpisodeRecord.of_episode(
+            episode, phase, seed, steps, outcome, result, involvement=self.arbiter.summary(),
+            control_period_s=self.period_s, policy_version=version,
+            dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
+            sim_time_s=((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0,
+            wall_time_s=time.monotonic() - wall0, notes=notes,
+            ask=self.help.summary if self.help is not None else None,
             supervised_steps=self._supervised_steps(phase, steps),
-            true_touchdown_distance_m=result.true_distance_m,
-            ask_threshold=None if self.p.asker is None or not math.isfinite(self.p.asker.threshold)
-            else round(self.p.asker.threshold, 8),
-        )
+            ask_threshold=self.p.asker.threshold if self.p.asker is not None else None)
