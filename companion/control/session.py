@@ -38,7 +38,7 @@ from companion.control.precland import PrecisionLander, precland_time_is_up
 from companion.control.records import EpisodeRecord, StepView
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
-from companion.control.touchdown import TouchdownAssist, touchdown_evidence, touchdown_need
+from companion.control.touchdown import VehicleTouchdown, touchdown_evidence
 from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
@@ -125,10 +125,12 @@ class EpisodeRunner:
         self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
         """The latest steps' own compute times (bounded: a long run must not grow without end)."""
         self._dialect = parts.dialect
-        self._touchdown: TouchdownAssist | None = None
         self._evidence_note: str | None = None
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
+        self.touchdown = VehicleTouchdown(parts.landing, self.period_s, -parts.cfg.pad_ned_m[2], self.home,
+                                          parts.limiter.max_down_m_s, parts.link)
+        """Touchdowns the vehicle's land detector recognises (companion/control/touchdown.py)."""
         self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home)
         self.starter = EpisodeStart(self.port, parts, lambda: self.dialect)
         self.trace: list[tuple[int, float, str]] = []
@@ -149,35 +151,6 @@ class EpisodeRunner:
                 raise LinkError("no HEARTBEAT from the vehicle yet: cannot tell its autopilot")
             self._dialect = dialect_for(snap.autopilot)
         return self._dialect
-
-    @property
-    def touchdown(self) -> TouchdownAssist | None:
-        """The touchdown assist for this vehicle, from its own land-detector parameters (asked
-        once, at the first episode); None when ``landing`` is not given or the assist is off."""
-        landing = self.p.landing
-        if landing is None or not landing.touchdown_assist:
-            return None
-        if self._touchdown is None:
-            need = touchdown_need(self.dialect_autopilot(), self.p.link.read_param, landing.min_descent_m_s)
-            self._touchdown = TouchdownAssist(need, landing, self.period_s, -self.p.cfg.pad_ned_m[2], self.home,
-                                              self.p.limiter.max_down_m_s)
-            log.info("touchdown: %s%s", need.why,
-                     f"; standing on a surface, the companion asks {self._touchdown.wanted_m_s:.3f} m/s"
-                     if self._touchdown.active else "; nothing to add")
-        return self._touchdown
-
-    def _reset_touchdown(self) -> None:
-        try:
-            assist = self.touchdown
-        except ColError as exc:  # no heartbeat yet: the episode's start reports it
-            log.debug("touchdown assist not ready: %s", exc)
-            return
-        if assist is not None:
-            assist.reset()
-
-    def dialect_autopilot(self) -> str:
-        snap = self.p.link.state()
-        return snap.autopilot if snap is not None else ""
 
     def leave_safe(self) -> str:
         """The configured end-of-run state (land or hold), after a run or a failed episode."""
@@ -214,7 +187,7 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
-        self._reset_touchdown()
+        self.touchdown.reset()
         self._begin_asking(episode)
         try:
             first, notes = self.starter.start(seed)
@@ -327,8 +300,8 @@ class EpisodeRunner:
         max_steps = self.p.cfg.max_steps if flying else sys.maxsize
         if snap is None:  # only after the last step (the loop recovers the link before)
             return outcome_rule.judge_frame(step, max_steps, False, None)
-        evidence = touchdown_evidence(snap, self._touchdown)
-        standing = self._touchdown is not None and self._touchdown.engaged
+        evidence = touchdown_evidence(snap, self.touchdown.assist)
+        standing = self.touchdown.assist is not None and self.touchdown.assist.engaged
         outcome = outcome_rule.judge_snapshot(step, max_steps, snap, self.p.fence if flying else None, self.home,
                                               touched_down=evidence is not None, standing=standing)
         if outcome == outcome_rule.TOUCHDOWN and evidence is not None and evidence.note:
@@ -395,7 +368,7 @@ class EpisodeRunner:
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
-        self._reset_touchdown()
+        self.touchdown.reset()
         return self.starter.start(seed)[0]
 
     def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
@@ -455,7 +428,7 @@ class EpisodeRunner:
         if self.help is not None and self.help.release_hold():  # rate limits start from what is asked now
             self.p.limiter.reset()
         sp = self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s)
-        return self._touchdown.apply(sp, snap) if self._touchdown is not None else sp
+        return self.touchdown.assist.apply(sp, snap) if self.touchdown.assist is not None else sp
 
     def _supervised_steps(self, phase: Phase, steps: int) -> int:
         if phase is Phase.AUTONOMOUS:

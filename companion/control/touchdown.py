@@ -13,6 +13,9 @@ the evidence says the vehicle stands on a surface: asked down, not moving vertic
 detector needs, times a margin, or at the vehicle's own landing descent if that is faster. Touchdown itself is the vehicle's landed state
 (EXTENDED_SYS_STATE ON_GROUND); only a vehicle that never reports one is judged by this
 evidence (``evidence_touchdown_s`` of it).
+
+:class:`VehicleTouchdown` makes a vehicle's assist at its first episode, from the land-detector
+parameters the vehicle itself gives (asked once), and starts it afresh at every episode.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from companion.config import LandingConfig
-from companion.link.base import VehicleSnapshot
+from companion.errors import ColError
+from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
 
@@ -166,6 +170,38 @@ class TouchdownAssist:
         if setpoint.down_m_s >= self.wanted_m_s:
             return setpoint
         return VelocitySetpoint(setpoint.forward_m_s, setpoint.right_m_s, self.wanted_m_s, setpoint.yaw_rate_rad_s)
+
+
+class VehicleTouchdown:
+    """One vehicle's touchdown assist, made at its first episode (module docstring): ``assist``
+    None while ``landing`` is not given, the assist is off, or the vehicle has not answered yet."""
+
+    def __init__(self, landing: LandingConfig | None, period_s: float, pad_height_m: float, home: HomeFrame,
+                 max_down_m_s: float, link: VehicleLink) -> None:
+        self.landing, self.period_s, self.pad_height_m, self.home = landing, period_s, pad_height_m, home
+        self.max_down_m_s, self.link = max_down_m_s, link
+        self.assist: TouchdownAssist | None = None
+
+    def reset(self) -> None:
+        """A new episode: the assist made if it is not yet (a vehicle that cannot say yet, with no
+        HEARTBEAT, is asked again at the next episode; its start reports why), and started afresh."""
+        landing = self.landing
+        if landing is None or not landing.touchdown_assist:
+            return
+        if self.assist is None:
+            try:
+                snap = self.link.state()
+                need = touchdown_need(snap.autopilot if snap is not None else "", self.link.read_param,
+                                      landing.min_descent_m_s)
+            except ColError as exc:
+                log.debug("touchdown assist not ready: %s", exc)
+                return
+            self.assist = TouchdownAssist(need, landing, self.period_s, self.pad_height_m, self.home,
+                                          self.max_down_m_s)
+            log.info("touchdown: %s%s", need.why,
+                     f"; standing on a surface, the companion asks {self.assist.wanted_m_s:.3f} m/s"
+                     if self.assist.active else "; nothing to add")
+        self.assist.reset()
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,13 @@ import pytest
 from companion.config import CompanionConfig, LandingConfig
 from companion.control.safety import SetpointLimiter
 from companion.control.sequences import take_off
-from companion.control.touchdown import TouchdownAssist, TouchdownNeed, touchdown_need
-from companion.errors import CommandRejected
+from companion.control.touchdown import (
+    TouchdownAssist,
+    TouchdownNeed,
+    VehicleTouchdown,
+    touchdown_need,
+)
+from companion.errors import CommandRejected, LinkError
 from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT
 from companion.link.home import HomeFrame
@@ -46,6 +51,7 @@ def _assist(home: HomeFrame | None = None, **cfg: object) -> TouchdownAssist:
 
 
 SLOW = VelocitySetpoint(0.1, 0.0, 0.263, 0.0)
+LANDING = LandingConfig()
 
 
 def test_standing_on_the_ground_while_asked_down_slowly_asks_what_px4_needs() -> None:
@@ -231,3 +237,56 @@ def test_the_assist_after_the_limiter_keeps_to_the_limiters_bounds() -> None:
     c = cfg.commands
     bounds = (c.v_xy_max_m_s, c.v_xy_max_m_s, c.v_z_max_m_s, c.yaw_rate_max_rad_s)
     assert all(abs(a) <= b for sp in sent for a, b in zip(sp.as_tuple(), bounds, strict=True))
+
+
+class ParamLink:
+    """A vehicle that says its autopilot and answers parameters (or cannot yet: ``error``)."""
+
+    def __init__(self, autopilot: str | None, params: dict[str, float], error: Exception | None = None) -> None:
+        self.autopilot, self.params, self.error = autopilot, params, error
+        self.asked: list[str] = []
+
+    def state(self) -> VehicleSnapshot | None:
+        return None if self.autopilot is None else snap(autopilot=self.autopilot)
+
+    def read_param(self, name: str) -> float | None:
+        self.asked.append(name)
+        if self.error is not None:
+            raise self.error
+        return self.params.get(name)
+
+
+def _vehicle(link: ParamLink, landing: LandingConfig | None = LANDING) -> VehicleTouchdown:
+    return VehicleTouchdown(landing, PERIOD_S, 1.5, HomeFrame(), max_down_m_s=1.0, link=link)  # type: ignore[arg-type]
+
+
+def test_a_vehicles_assist_is_made_once_from_its_own_parameters_and_reset_each_episode() -> None:
+    link = ParamLink("PX4", {"LNDMC_Z_VEL_MAX": 0.3})
+    touchdown = _vehicle(link)
+    touchdown.reset()
+    assist = touchdown.assist
+    assert assist is not None and assist.need.min_descent_m_s == pytest.approx(0.33)
+    for _ in range(assist.window_steps):
+        assist.apply(SLOW, snap(down_m=0.0))
+    assert assist.engaged
+    touchdown.reset()
+    assert touchdown.assist is assist and not assist.engaged  # the same assist, started afresh
+    assert link.asked == ["LNDMC_Z_VEL_MAX", "MPC_LAND_SPEED"]  # asked once
+
+
+def test_no_assist_without_landing_or_switched_off_and_none_until_the_vehicle_answers() -> None:
+    for landing in (None, LandingConfig(touchdown_assist=False)):
+        link = ParamLink("PX4", {})
+        touchdown = _vehicle(link, landing)
+        touchdown.reset()
+        assert touchdown.assist is None and link.asked == []
+    silent = ParamLink("PX4", {}, error=LinkError("no HEARTBEAT"))
+    touchdown = _vehicle(silent)
+    touchdown.reset()
+    assert touchdown.assist is None
+    silent.error = None
+    touchdown.reset()  # asked again at the next episode
+    assert touchdown.assist is not None and touchdown.assist.need.min_descent_m_s == pytest.approx(0.275)
+    unknown = _vehicle(ParamLink(None, {}))
+    unknown.reset()  # no HEARTBEAT at all: no known descent rule, nothing to add
+    assert unknown.assist is not None and not unknown.assist.active
