@@ -12,15 +12,20 @@ nothing is recorded:
 - ``video``: the configured camera gave no usable frame for the step: the pad's state is
   unknown (not "not visible"). The step flies as decided, but is not recorded.
 
-The episode loop tells an :class:`~companion.control.session.EpisodeControl` (the console) when
-a gap starts, changes or ends, and notes the count of each kind in the episode's record.
+The episode loop notes each step's gap in a :class:`GapReporter`, which logs a gap as it starts,
+tells a :class:`GapWatcher` (the console) when a gap starts, changes or ends, and gives the count
+of each kind for the episode's record.
 """
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
+
+log = logging.getLogger(__name__)
 
 GapKind = Literal["telemetry", "link", "video"]
 GAP_KINDS: tuple[GapKind, ...] = ("telemetry", "link", "video")
@@ -72,3 +77,40 @@ class GapCounter:
                  "link": "vehicle link lost {n} times, nothing recorded meanwhile",
                  "video": "{n} steps flown without a camera frame, not recorded"}
         return [words[k].format(n=self.counts[k]) for k in GAP_KINDS if self.counts[k]]
+
+
+class GapWatcher(Protocol):
+    """Someone told when the steps stop being recordable for a vehicle-side reason, or are whole
+    again (None): the console (:class:`~companion.control.session.EpisodeControl`)."""
+
+    def on_gap(self, gap: Gap | None) -> None: ...
+
+
+class GapReporter:
+    """One vehicle's gaps, episode by episode: counted, logged as each starts, and told to the
+    watcher ``watcher()`` gives (read at each change: a run may swap it; None: nobody watches)."""
+
+    def __init__(self, watcher: Callable[[], GapWatcher | None]) -> None:
+        self.counter = GapCounter()
+        self.watcher = watcher
+
+    def begin(self) -> None:
+        """A new episode: its own counts, and a gap left over from the last episode is over."""
+        self.counter.reset()
+        if self.counter.step(None, count=False):
+            self._tell(None)
+
+    def note(self, gap: Gap | None) -> None:
+        """This step's gap (None: a whole step); the watcher is told when it changes."""
+        if self.counter.step(gap):
+            if gap is not None:
+                log.warning("%s", gap.text)
+            self._tell(gap)
+
+    def notes(self) -> list[str]:
+        return self.counter.notes()
+
+    def _tell(self, gap: Gap | None) -> None:
+        watcher = self.watcher()
+        if watcher is not None:
+            watcher.on_gap(gap)

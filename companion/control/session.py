@@ -31,7 +31,7 @@ from companion.control.arbiter import Arbiter, Phase
 from companion.control.ask import AskAction, AskEvent, HelpAsker
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
-from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapCounter
+from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapReporter
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander, precland_time_is_up
@@ -136,7 +136,7 @@ class EpisodeRunner:
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
         self._fresh = FreshnessGate()
-        self.gaps = GapCounter()
+        self.gaps = GapReporter(lambda: self.p.control)
         """The current episode's steps that were not true samples, by kind (control/gaps.py)."""
         self.help = (HelpSession(parts.asker, parts.human, self.port, self.period_s, parts.on_ask_event)
                      if parts.asker is not None else None)
@@ -160,7 +160,7 @@ class EpisodeRunner:
     def _recover_link(self) -> VehicleSnapshot | str:
         """Link lost: nothing streamed (the vehicle's failsafe holds) until it comes back: its
         first snapshot; or why the episode ends instead (LinkPort.wait_for_link)."""
-        self._note_gap(LINK_LOST)
+        self.gaps.note(LINK_LOST)
         log.warning("link lost: not streaming setpoints; the vehicle's failsafe holds. Waiting %.0f s",
                     self.p.cfg.link_patience_s)
         control = self.p.control
@@ -183,7 +183,8 @@ class EpisodeRunner:
     def run(self, episode: int, phase: Phase, seed: int | None) -> EpisodeRecord:
         """Fly one episode; never raises for what happens in flight (it is in the record)."""
         wall0 = time.monotonic()
-        self._begin_gaps()
+        self._fresh.reset()  # the first step needs only complete telemetry
+        self.gaps.begin()
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
@@ -272,26 +273,9 @@ class EpisodeRunner:
     def _hold_on_stale(self, step: int) -> None:
         """No newer telemetry since the last step: the zero-velocity hold (through the limiter,
         as a refused input's neutral sticks), nobody asked, nothing recorded."""
-        self._note_gap(STALE_TELEMETRY)
+        self.gaps.note(STALE_TELEMETRY)
         self.port.send(self.p.limiter.apply(self.p.mapper.to_setpoint(JoystickCommand.neutral()), self.period_s))
         self.trace.append((step, math.nan, "hold"))
-
-    # ----- gaps: steps that are not true samples -----------------------------------------------
-    def _begin_gaps(self) -> None:
-        """A new episode: its own counts, its first step needs only complete telemetry, and a
-        gap left over from the last episode is over."""
-        self._fresh.reset()
-        self.gaps.reset()
-        if self.gaps.step(None, count=False) and self.p.control is not None:
-            self.p.control.on_gap(None)
-
-    def _note_gap(self, gap: Gap | None) -> None:
-        """Count this step's gap (None: a whole step) and tell the operator when it changes."""
-        if self.gaps.step(gap):
-            if gap is not None:
-                log.warning("%s", gap.text)
-            if self.p.control is not None:
-                self.p.control.on_gap(gap)
 
     def _stop_reason(self, step: int, snap: VehicleSnapshot | None, flying: bool = True) -> str | None:
         """Why the episode ends before this step: the one rule of companion/control/outcome.py
@@ -391,7 +375,7 @@ class EpisodeRunner:
             log.warning("step %d: unusable telemetry (%s); holding", step, exc)
             self.port.send(HOLD)
             return None
-        self._note_gap(VIDEO_MISSING if obs.frame_missing else None)
+        self.gaps.note(VIDEO_MISSING if obs.frame_missing else None)
         human = self.help.read_human(phase, obs) if self.help is not None else self.p.human.read(obs)
         policy_cmd, version, score = self._policy_command(vector)
         action = self.help.action(phase, step, score, human) if self.help is not None else AskAction.POLICY
