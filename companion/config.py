@@ -151,6 +151,11 @@ class LearnerConfig(Section):
         description="K copies of the network, each on its own minibatches, flying their mean action; "
         "1 = the paper's single network; asking for help ([companion.ask]) needs >= 2 (5 is usual)",
     )
+    # Switches beyond the paper (docs/learner.md, "Learner switches"); each off by default.
+    mirror_augment: bool = Field(
+        False, description="every minibatch also holds each sample's left/right mirror image (east, roll, "
+        "yaw, their rates, the pad's image column and the roll and yaw sticks negated): twice the rows"
+    )
 
 
 class PilotConfig(Section):

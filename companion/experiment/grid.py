@@ -219,10 +219,11 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("session", "end_of_run"): "land",
     ("session", "arm_timeout_s"): 60.0,
     ("perception", "render_rate_hz"): 30.0,
+    ("learner", "mirror_augment"): False,
 }
 """Companion settings added after results were committed, with the default that behaves as
-before them (one network; no signing; the run's own SITL is never left by end_of_run; our
-SITL arms at once)."""
+before them (one network; every learner switch of docs/learner.md off; no signing; the run's
+own SITL is never left by end_of_run; our SITL arms at once)."""
 
 
 EXPERIMENT_LANDING = LandingConfig(touchdown_assist=False)

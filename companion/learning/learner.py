@@ -26,11 +26,12 @@ import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
+from companion.learning.augment import Mirror
 from companion.learning.dataset import DatasetView
 from companion.learning.ensemble import EnsembleSnapshot, EnsembleTrainer
 from companion.learning.snapshot import Normalisation, PolicySnapshot, random_snapshot
 from companion.learning.trainer import MlpTrainer, one_blas_thread
-from companion.vision.observation import OBS_DIM
+from companion.vision.observation import OBS_DIM, OBS_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +89,7 @@ class Learner:
         self._converged = False
         self._since_publish = 0
         self._latest = self.trainer.snapshot(self.updates, self._trained_size)
+        self._mirror = self._mirror_for(config, obs_dim)
 
     @classmethod
     def _make_trainer(cls, config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
@@ -108,6 +110,16 @@ class Learner:
         members = [cls._initial_weights(config.model_copy(update={"seed": config.seed + m}), obs_dim,
                                          normalisation, None) for m in range(k)]
         return EnsembleTrainer.from_snapshot(EnsembleSnapshot.of_members(members), lr=lr, batch_size=batch)
+
+    @staticmethod
+    def _mirror_for(config: LearnerConfig, obs_dim: int) -> Mirror | None:
+        """The left/right mirror of the observation the dataset records (``mirror_augment``)."""
+        if not config.mirror_augment:
+            return None
+        if obs_dim != OBS_DIM:
+            raise ConfigError(f"mirror_augment knows the {OBS_DIM}-value observation {OBS_NAMES}, the learner's "
+                              f"has {obs_dim} values; set mirror_augment = false")
+        return Mirror(OBS_NAMES)
 
     @staticmethod
     def _initial_weights(config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
@@ -146,10 +158,9 @@ class Learner:
             n = len(view)
             if n == 0:
                 raise ValueError("the dataset is empty; record samples before training")
-            k = self.config.ensemble_members  # an ensemble: every member its own minibatch
-            idx = self.rng.integers(0, n, size=self.config.batch_size if k == 1 else (k, self.config.batch_size))
+            obs, actions = self._minibatch(view)
             try:
-                value = self.trainer.step(view.obs[idx], view.actions[idx])
+                value = self.trainer.step(obs, actions)
             except FloatingPointError as exc:
                 raise FloatingPointError(
                     f"{exc}; check the dataset for extreme observations or lower learning_rate"
@@ -159,6 +170,16 @@ class Learner:
             self._since_publish += 1
             self.last_loss = value
             return value
+
+    def _minibatch(self, view: DatasetView) -> tuple[np.ndarray, np.ndarray]:
+        """``batch_size`` rows drawn with replacement (an ensemble: a draw for every member),
+        followed by their mirror images with ``mirror_augment``."""
+        k = self.config.ensemble_members
+        idx = self.rng.integers(0, len(view), size=self.config.batch_size if k == 1 else (k, self.config.batch_size))
+        obs, actions = view.obs[idx], view.actions[idx]
+        if self._mirror is not None:
+            obs, actions = self._mirror.with_mirrored(obs, actions)
+        return obs, actions
 
     # -- the paper's loop ---------------------------------------------------------------
     @property
