@@ -5,11 +5,15 @@ PLND_*) gets its parameters and a reboot if they are not set yet (:meth:`Precisi
 After the episode's start (the companion flew there), the landing is handed over: the dialect's
 parameters and mode (PX4 AUTO.PRECLAND; ArduPilot PLND_* and LAND), then one LANDING_TARGET per
 camera frame in which the pad's board is decoded (companion/link/landing_target.py has the
-contract), until the vehicle reports touchdown. Nothing here flies the vehicle.
+contract), until the vehicle reports touchdown (:func:`fly_precland`, the episode after its start,
+through the session's :class:`~companion.control.link_port.LinkPort`). Nothing here flies the
+vehicle.
 """
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import logging
 import math
 import time
@@ -17,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from colcommon.frames import Frame
+from companion.control.link_port import HOLD, LinkPort
 from companion.errors import CommandRejected, LinkTimeout
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect
@@ -204,3 +209,50 @@ def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate
     if lockstep:
         return step >= max_steps
     return elapsed_ms >= 1000.0 * max_steps / control_rate_hz or step >= 20 * max_steps
+
+
+def fly_precland(lander: PrecisionLander, port: LinkPort, dialect: Dialect, snap: VehicleSnapshot | None, *,
+                 max_steps: int, recover: Callable[[], VehicleSnapshot | str],
+                 stop: Callable[[int, VehicleSnapshot], str | None],
+                 asking: contextlib.AbstractContextManager[None] | None = None) -> tuple[str, int, VehicleSnapshot | None]:
+    """An episode the autopilot lands, from its first snapshot ``snap``: (outcome, steps, last
+    snapshot). The landing is asked for within ``asking`` (PX4 leaves OFFBOARD only once the ACK is
+    in: the session keeps its hold stream flowing meanwhile), then each step is one LANDING_TARGET
+    per camera frame, until :func:`precland_time_is_up` ("timeout") or ``stop`` (the episode's one
+    rule, companion/control/outcome.py) gives the reason it ends. A lost link (None) waits for
+    ``recover``: its first snapshot, or why the episode ends. In lockstep each frame is still
+    answered (a zero setpoint the vehicle does not fly)."""
+    lander.begin()
+    with asking if asking is not None else contextlib.nullcontext():
+        lander.engage(dialect)
+    outcome, steps = "timeout", 0
+    started_ms = snap.time_boot_ms if snap is not None else None
+    for step in itertools.count():
+        if snap is None:
+            recovered = recover()
+            if isinstance(recovered, str):
+                return recovered, steps, None
+            snap = recovered
+        if started_ms is None:
+            started_ms = snap.time_boot_ms
+        if precland_time_is_up(step, snap.time_boot_ms - started_ms, max_steps, port.control_rate_hz, port.lockstep):
+            break
+        reason = stop(step, snap)
+        if reason is not None:
+            outcome = reason
+            break
+        steps = step + 1
+        lander.feed(snap, port.lockstep, dialect)
+        snap = _next_snapshot(lander, port)
+    return outcome, steps, snap
+
+
+def _next_snapshot(lander: PrecisionLander, port: LinkPort) -> VehicleSnapshot | None:
+    """Lockstep: answer this frame, then the next. Real time: the newest telemetry (the wait
+    for the camera's next frame paced the step; without a camera the control rate does)."""
+    if port.lockstep:
+        port.send(HOLD)
+        return port.next_snapshot()
+    if lander.camera is None:
+        return port.next_snapshot()
+    return port.newest()

@@ -34,7 +34,7 @@ from companion.control.freshness import FreshnessGate
 from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapReporter
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
-from companion.control.precland import PrecisionLander, precland_time_is_up
+from companion.control.precland import PrecisionLander, fly_precland
 from companion.control.records import EpisodeRecord, StepView
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
@@ -202,7 +202,10 @@ class EpisodeRunner:
         try:
             self._evidence_note = None
             if self.p.lander is not None:
-                outcome, version, steps, snap = self._fly_precland(self.p.lander, snap)
+                outcome, steps, snap = fly_precland(
+                    self.p.lander, self.port, self.dialect, snap, max_steps=self.p.cfg.max_steps,
+                    recover=self._recover_link, stop=lambda step, now: self._stop_reason(step, now, flying=False),
+                    asking=self.starter.hold_stream_while_asking())
                 notes.append(self.p.lander.counts.note())
             else:
                 outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
@@ -305,45 +308,6 @@ class EpisodeRunner:
             self.p.link.set_mode(self.dialect.hold_mode)
         except ColError as exc:
             log.error("could not switch to hold: %s", exc)
-
-    def _fly_precland(self, lander: PrecisionLander, snap: VehicleSnapshot | None
-                      ) -> tuple[str, int | None, int, VehicleSnapshot | None]:
-        """The autopilot lands on the companion's LANDING_TARGET, one per camera frame; in
-        lockstep each frame is still answered (a zero setpoint the vehicle does not fly)."""
-        lander.begin()
-        with self.starter.hold_stream_while_asking():  # PX4 leaves OFFBOARD only once the ACK is in
-            lander.engage(self.dialect)
-        outcome, steps = "timeout", 0
-        started_ms = snap.time_boot_ms if snap is not None else None
-        for step in itertools.count():
-            if snap is None:
-                recovered = self._recover_link()
-                if isinstance(recovered, str):
-                    return recovered, None, steps, None
-                snap = recovered
-            if started_ms is None:
-                started_ms = snap.time_boot_ms
-            if precland_time_is_up(step, snap.time_boot_ms - started_ms, self.p.cfg.max_steps,
-                                   self.p.cfg.control_rate_hz, self.p.lockstep):
-                break
-            stop = self._stop_reason(step, snap, flying=False)
-            if stop is not None:
-                outcome = stop
-                break
-            steps = step + 1
-            lander.feed(snap, self.p.lockstep, self.dialect)
-            snap = self._next_precland_snapshot(lander)
-        return outcome, None, steps, snap
-
-    def _next_precland_snapshot(self, lander: PrecisionLander) -> VehicleSnapshot | None:
-        """Lockstep: answer this frame, then the next. Real time: the newest telemetry (the wait
-        for the camera's next frame paced the step; without a camera the control rate does)."""
-        if self.p.lockstep:
-            self.port.send(HOLD)
-            return self.port.next_snapshot()
-        if lander.camera is None:
-            return self.port.next_snapshot()
-        return self.port.newest()
 
     # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
     def begin(self, seed: int | None) -> VehicleSnapshot:

@@ -3,6 +3,8 @@ in memory and over sockets against the fake vehicle."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -16,11 +18,12 @@ from colcommon.frames import Frame
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig, LinkConfig
 from companion.control.arbiter import Phase
-from companion.control.precland import PrecisionLander
+from companion.control.precland import PrecisionLander, fly_precland
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import CommandRejected, LinkTimeout
 from companion.inputs.base import HumanCommand, HumanInput
+from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT, PX4
 from companion.link.landing_target import (
     MAV_FRAME_BODY_FRD,
@@ -29,6 +32,7 @@ from companion.link.landing_target import (
     landing_target,
 )
 from companion.link.mavlink_link import MavlinkLink
+from companion.link.setpoints import VelocitySetpoint
 from companion.testing.fake_vehicle import FakeVehicle
 from companion.vision.aruco import ArucoPadDetector
 from companion.vision.observation import Observation
@@ -342,3 +346,82 @@ def test_a_precland_episode_lasts_max_steps_control_periods_whatever_the_camera_
     assert precland_time_is_up(10_000, 0, 500, 10.5, lockstep=False)  # a clock that stands still is bounded
     assert not precland_time_is_up(499, 10**9, 500, 10.5, lockstep=True)  # lockstep: the count, as before
     assert precland_time_is_up(500, 0, 500, 10.5, lockstep=True)
+
+
+# ----- the episode the autopilot lands (fly_precland) -------------------------------------------
+class FramePort:
+    """A port that hands out the frames given (None: the link fell silent) and keeps what it was sent."""
+
+    def __init__(self, frames: list[VehicleSnapshot | None], lockstep: bool = True) -> None:
+        self.frames, self.lockstep, self.control_rate_hz = list(frames), lockstep, 10.0
+        self.calls: list[str] = []
+        self.sent: list[VelocitySetpoint] = []
+
+    def send(self, sp: VelocitySetpoint) -> None:
+        self.calls.append("send")
+        self.sent.append(sp)
+
+    def next_snapshot(self) -> VehicleSnapshot | None:
+        self.calls.append("next")
+        return self.frames.pop(0)
+
+    def newest(self) -> VehicleSnapshot | None:
+        self.calls.append("newest")
+        return self.frames.pop(0)
+
+
+def frames_from(ms: int, n: int) -> list[VehicleSnapshot | None]:
+    return [dataclasses.replace(snapshot(), time_boot_ms=ms + 100 * i) for i in range(n)]
+
+
+def test_a_landed_precland_episode_answers_each_frame_until_the_stop_rule_ends_it() -> None:
+    link, entered = RecordingLink(), []
+
+    @contextlib.contextmanager
+    def asking():  # type: ignore[no-untyped-def]
+        entered.append(len(link.calls))
+        yield
+        entered.append(len(link.calls))
+
+    port = FramePort(frames_from(1100, 5))
+    judged: list[int] = []
+
+    def stop(step: int, snap: VehicleSnapshot) -> str | None:
+        judged.append(snap.time_boot_ms)
+        return "touchdown" if step == 3 else None
+
+    first = dataclasses.replace(snapshot(), time_boot_ms=1000)
+    outcome, steps, last = fly_precland(PrecisionLander(link, None, detector()), port, PX4, first, max_steps=50,  # type: ignore[arg-type]
+                                        recover=lambda: "link_lost", stop=stop, asking=asking())
+    assert (outcome, steps, last and last.time_boot_ms) == ("touchdown", 3, 1300)
+    assert link.calls == [("mode", "AUTO.PRECLAND")] and entered == [0, 1]  # asked within the hold stream
+    assert judged == [1000, 1100, 1200, 1300]  # every frame judged before it is flown
+    assert port.calls == ["send", "next"] * 3 and set(port.sent) == {VelocitySetpoint(0.0, 0.0, 0.0, 0.0)}
+
+
+def test_a_precland_episode_times_out_and_waits_out_a_lost_link() -> None:
+    port = FramePort(frames_from(1100, 20))
+    lander = PrecisionLander(RecordingLink(), None, detector())  # type: ignore[arg-type]
+    outcome, steps, _ = fly_precland(lander, port, PX4, snapshot(), max_steps=4, recover=lambda: "link_lost",  # type: ignore[arg-type]
+                                     stop=lambda step, snap: None)
+    assert (outcome, steps) == ("timeout", 4)
+    lost = FramePort([*frames_from(1100, 2), None])
+    assert fly_precland(lander, lost, PX4, snapshot(), max_steps=10, recover=lambda: "stopped",  # type: ignore[arg-type]
+                        stop=lambda step, snap: None) == ("stopped", 3, None)
+    back = FramePort([None, *frames_from(1300, 3)])
+    outcome, steps, _ = fly_precland(lander, back, PX4, snapshot(), max_steps=3,  # type: ignore[arg-type]
+                                     recover=lambda: dataclasses.replace(snapshot(), time_boot_ms=1200),
+                                     stop=lambda step, snap: None)
+    assert (outcome, steps) == ("timeout", 3)  # the recovered frame is flown on
+
+
+def test_in_real_time_a_precland_step_takes_the_newest_telemetry_when_a_camera_paces_it() -> None:
+    paced = FramePort(frames_from(1100, 3), lockstep=False)
+    lander = PrecisionLander(RecordingLink(), OneFrameCamera(np.zeros((240, 320, 3), np.uint8)), detector())  # type: ignore[arg-type]
+    fly_precland(lander, paced, PX4, snapshot(), max_steps=10, recover=lambda: "link_lost",  # type: ignore[arg-type]
+                 stop=lambda step, snap: "touchdown" if step == 2 else None)
+    assert paced.calls == ["newest", "newest"] and lander.counts.frames == 2  # no setpoint: nothing to answer
+    unpaced = FramePort(frames_from(1100, 3), lockstep=False)
+    fly_precland(PrecisionLander(RecordingLink(), None, detector()), unpaced, PX4, snapshot(), max_steps=10,  # type: ignore[arg-type]
+                 recover=lambda: "link_lost", stop=lambda step, snap: "touchdown" if step == 2 else None)
+    assert unpaced.calls == ["next", "next"]  # without a camera the control rate paces it
