@@ -156,6 +156,17 @@ class LearnerConfig(Section):
         False, description="every minibatch also holds each sample's left/right mirror image (east, roll, "
         "yaw, their rates, the pad's image column and the roll and yaw sticks negated): twice the rows"
     )
+    intervention_weight: float = Field(
+        1.0, gt=0, le=1000, description="weight of an intervention sample in the loss (a demonstration's "
+        "is 1; the loss is the minibatch's weighted mean); 1 = the paper's MSE"
+    )
+    takeover_steps: int = Field(
+        0, ge=0, description="the first this many samples of each take-over weigh takeover_weight; 0 = none"
+    )
+    takeover_weight: float = Field(
+        1.0, gt=0, le=1000, description="weight of a take-over's first takeover_steps samples (instead of "
+        "intervention_weight)"
+    )
 
 
 class PilotConfig(Section):

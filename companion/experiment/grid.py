@@ -220,6 +220,9 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("session", "arm_timeout_s"): 60.0,
     ("perception", "render_rate_hz"): 30.0,
     ("learner", "mirror_augment"): False,
+    ("learner", "intervention_weight"): 1.0,
+    ("learner", "takeover_steps"): 0,
+    ("learner", "takeover_weight"): 1.0,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's

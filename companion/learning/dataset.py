@@ -101,6 +101,10 @@ class DatasetView:
     actions: np.ndarray
     intervention: np.ndarray | None = None
     """Per row: recorded while the person intervened (None where the source is not kept)."""
+    episode: np.ndarray | None = None
+    """Per row: the episode it was recorded in (None where not kept)."""
+    step: np.ndarray | None = None
+    """Per row: its control step within the episode (None where not kept)."""
 
     def __len__(self) -> int:
         return int(self.obs.shape[0])
@@ -230,6 +234,10 @@ def _to_arrays(rows: list, obs_dim: int, report: LoadReport) -> LoadedRows:
     )
 
 
+ROW_ARRAYS: tuple[str, ...] = ("obs", "actions", "intervention", "episode", "step")
+"""The in-memory columns, in :class:`DatasetView`'s field order."""
+
+
 class _Rows:
     """Arrays that grow in chunks; rows below ``n`` are never written again."""
 
@@ -238,13 +246,15 @@ class _Rows:
         self.obs = np.empty((chunk_rows, obs_dim), np.float32)
         self.actions = np.empty((chunk_rows, ACT_DIM), np.float32)
         self.intervention = np.zeros(chunk_rows, bool)
+        self.episode = np.zeros(chunk_rows, np.int64)
+        self.step = np.zeros(chunk_rows, np.int64)
 
     def ensure(self, n_rows: int) -> None:
         """Make room; growing copies into *new* arrays, so existing views stay valid."""
         if n_rows <= self.obs.shape[0]:
             return
         capacity = max(n_rows, 2 * self.obs.shape[0]) + self.chunk_rows
-        for name in ("obs", "actions", "intervention"):
+        for name in ROW_ARRAYS:
             old = getattr(self, name)
             new = np.zeros((capacity, *old.shape[1:]), old.dtype)
             new[: old.shape[0]] = old
@@ -269,7 +279,6 @@ class HumanDataset:
         self.last_episode = -1
         self.load_report = LoadReport(0)
         self.discarded: set[int] = set()
-        self._episodes: list[int] = []  # each in-memory row's episode (to discard the last one)
         self._fd = -1 if self.path is None else self._open_file(self.path)
 
     # -- file ---------------------------------------------------------------------------
@@ -300,9 +309,10 @@ class HumanDataset:
         self._rows.actions[:n] = loaded.actions[keep]
         sources = [s for s, k in zip(loaded.source, keep, strict=True) if k]
         self._rows.intervention[:n] = [s is Source.INTERVENTION for s in sources]
+        self._rows.episode[:n] = loaded.episode[keep]
+        self._rows.step[:n] = loaded.step[keep]
         for s in sources:
             self.counts[s] += 1
-        self._episodes = loaded.episode[keep].tolist()
         self._publish(n)
 
     def sync(self) -> None:
@@ -346,9 +356,9 @@ class HumanDataset:
                 self._rows.obs[i] = s.obs
                 self._rows.actions[i] = s.action
                 self._rows.intervention[i] = s.source is Source.INTERVENTION
+                self._rows.episode[i], self._rows.step[i] = s.episode, s.step
                 self.counts[s.source] += 1
                 self.last_episode = max(self.last_episode, s.episode)
-                self._episodes.append(s.episode)
             self._publish(n + len(batch))
             self._cond.notify_all()
             return n + len(batch)
@@ -361,7 +371,7 @@ class HumanDataset:
         with self._cond:
             n = len(self._published)
             first = n
-            while first > 0 and self._episodes[first - 1] == episode:
+            while first > 0 and self._rows.episode[first - 1] == episode:
                 first -= 1
             if episode in self.discarded:
                 raise ValueError(f"episode {episode} was discarded already")
@@ -385,11 +395,11 @@ class HumanDataset:
         old = self._rows
         fresh = _Rows(old.obs.shape[1], old.chunk_rows)
         fresh.ensure(n)
-        fresh.obs[:n], fresh.actions[:n], fresh.intervention[:n] = old.obs[:n], old.actions[:n], old.intervention[:n]
+        for name in ROW_ARRAYS:
+            getattr(fresh, name)[:n] = getattr(old, name)[:n]
         for i in range(n, len(self._published)):
             self.counts[Source.INTERVENTION if old.intervention[i] else Source.DEMONSTRATION] -= 1
         self._rows = fresh
-        del self._episodes[n:]
         self._publish(n)
 
     @staticmethod
@@ -397,10 +407,10 @@ class HumanDataset:
         return path.with_name(path.stem + DISCARDS_SUFFIX)
 
     def _publish(self, n: int) -> None:
-        obs, actions, intervention = self._rows.obs[:n], self._rows.actions[:n], self._rows.intervention[:n]
-        for array in (obs, actions, intervention):
+        arrays = [getattr(self._rows, name)[:n] for name in ROW_ARRAYS]
+        for array in arrays:
             array.flags.writeable = False
-        self._published = DatasetView(obs, actions, intervention)  # one assignment: readers see old or new
+        self._published = DatasetView(*arrays)  # one assignment: readers see old or new
 
     # -- reading ------------------------------------------------------------------------
     def __len__(self) -> int:

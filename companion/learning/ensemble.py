@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from companion.learning.snapshot import Normalisation, PolicySnapshot, _frozen_f32
-from companion.learning.trainer import RmsPropState, forward_into
+from companion.learning.trainer import RmsPropState, forward_into, root_weights
 
 F32 = np.float32
 DEFAULT_MEMBERS = 5
@@ -183,10 +183,13 @@ class EnsembleTrainer(RmsPropState):
         self._raw, self._y, self._diff = (np.empty((k, n, w), F32) for w in (s[0], s[-1], s[-1]))
         self._norm = F32(2.0 / (n * s[-1]))
 
-    def step(self, obs_batch: np.ndarray, target_batch: np.ndarray) -> float:
+    def step(self, obs_batch: np.ndarray, target_batch: np.ndarray,
+             row_weights: np.ndarray | None = None) -> float:
         """One RMSprop update of every member on its own rows ``(K, n, in)`` / ``(K, n, 4)``;
         returns the members' mean MSE before the update (each is in ``member_losses``).
 
+        ``row_weights`` ``(K, n)`` (None: all equal) make each member's loss the weighted mean
+        of its rows' squared errors (:func:`~companion.learning.trainer.root_weights`).
         Raises FloatingPointError on a non-finite loss, leaving weights and state untouched.
         """
         if obs_batch.shape[:2] != self._raw.shape[:2]:
@@ -199,9 +202,14 @@ class EnsembleTrainer(RmsPropState):
         y = forward_into(obs_batch, self.mean, self.std, self._raw, xa, xv, A, self._y)
         last = len(A) - 1
         diff = np.subtract(y, target_batch, out=self._diff)
+        root = None if row_weights is None else root_weights(row_weights, obs_batch.shape[:-1])
+        if root is not None:
+            np.multiply(diff, root, out=diff)  # sqrt(w) (y - t), as MlpTrainer.step
         losses = np.einsum("knj,knj->k", diff, diff) / F32(diff[0].size)
         if not np.all(np.isfinite(losses)):
             raise FloatingPointError(f"training loss became {losses.tolist()} at update {self.updates + 1}")
+        if root is not None:
+            np.multiply(diff, root, out=diff)  # w (y - t)
         np.multiply(y, y, out=mask[last])
         np.subtract(1, mask[last], out=mask[last])
         np.multiply(diff, self._norm, out=dz[last])

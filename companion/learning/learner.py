@@ -31,6 +31,7 @@ from companion.learning.dataset import DatasetView
 from companion.learning.ensemble import EnsembleSnapshot, EnsembleTrainer
 from companion.learning.snapshot import Normalisation, PolicySnapshot, random_snapshot
 from companion.learning.trainer import MlpTrainer, one_blas_thread
+from companion.learning.weighting import WeightCache, weighting_on
 from companion.vision.observation import OBS_DIM, OBS_NAMES
 
 log = logging.getLogger(__name__)
@@ -90,6 +91,7 @@ class Learner:
         self._since_publish = 0
         self._latest = self.trainer.snapshot(self.updates, self._trained_size)
         self._mirror = self._mirror_for(config, obs_dim)
+        self._weights = WeightCache(config) if weighting_on(config) else None
 
     @classmethod
     def _make_trainer(cls, config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
@@ -158,9 +160,9 @@ class Learner:
             n = len(view)
             if n == 0:
                 raise ValueError("the dataset is empty; record samples before training")
-            obs, actions = self._minibatch(view)
+            obs, actions, weights = self._minibatch(view)
             try:
-                value = self.trainer.step(obs, actions)
+                value = self.trainer.step(obs, actions, weights)
             except FloatingPointError as exc:
                 raise FloatingPointError(
                     f"{exc}; check the dataset for extreme observations or lower learning_rate"
@@ -171,15 +173,18 @@ class Learner:
             self.last_loss = value
             return value
 
-    def _minibatch(self, view: DatasetView) -> tuple[np.ndarray, np.ndarray]:
+    def _minibatch(self, view: DatasetView) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """``batch_size`` rows drawn with replacement (an ensemble: a draw for every member),
-        followed by their mirror images with ``mirror_augment``."""
+        followed by their mirror images with ``mirror_augment``; their weights in the loss
+        (None: all equal, the paper's MSE)."""
         k = self.config.ensemble_members
         idx = self.rng.integers(0, len(view), size=self.config.batch_size if k == 1 else (k, self.config.batch_size))
         obs, actions = view.obs[idx], view.actions[idx]
+        weights = None if self._weights is None else self._weights.of(view)[idx]
         if self._mirror is not None:
             obs, actions = self._mirror.with_mirrored(obs, actions)
-        return obs, actions
+            weights = None if weights is None else np.concatenate([weights, weights], axis=-1)
+        return obs, actions, weights
 
     # -- the paper's loop ---------------------------------------------------------------
     @property

@@ -37,7 +37,7 @@ import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import ColError, ConfigError, DatasetCorrupt
-from companion.learning.dataset import DatasetView, csv_header
+from companion.learning.dataset import DatasetView, Source, csv_header
 from companion.learning.learner import Learner, LearnerState
 from companion.learning.snapshot import ACT_DIM, Normalisation, PolicySnapshot
 from companion.learning.trainer import limit_torch_threads
@@ -70,9 +70,11 @@ class CsvTail:
         self._n_cols = len(csv_header(obs_names))
         self._obs_dim = len(obs_names)
         self._chunk_rows = chunk_rows
-        self._obs = np.empty((chunk_rows, self._obs_dim), np.float32)
-        self._actions = np.empty((chunk_rows, ACT_DIM), np.float32)
-        self._view = DatasetView(self._obs[:0], self._actions[:0])
+        self._cols = {"obs": np.empty((chunk_rows, self._obs_dim), np.float32),
+                      "actions": np.empty((chunk_rows, ACT_DIM), np.float32),
+                      "intervention": np.zeros(chunk_rows, bool),
+                      "episode": np.zeros(chunk_rows, np.int64), "step": np.zeros(chunk_rows, np.int64)}
+        self._view = DatasetView(**{name: col[:0] for name, col in self._cols.items()})
         self._pending = b""
         self._lines_seen = 0  # including the header
         self._fd = os.open(self.path, os.O_RDONLY)
@@ -117,7 +119,8 @@ class CsvTail:
             raise DatasetCorrupt(f"{self.path}: the header is not the dataset's "
                                  f"({self._header.decode()}); point the learner at the right file")
 
-    def _parse(self, lines: list[bytes]) -> np.ndarray:
+    def _parse(self, lines: list[bytes]) -> dict[str, np.ndarray]:
+        """The lines' columns as arrays, by :class:`DatasetView`'s field names."""
         first = self._lines_seen + 1
         self._lines_seen += len(lines)
         rows = [line.decode("utf-8", "replace").split(",") for line in lines]
@@ -127,30 +130,33 @@ class CsvTail:
                                      f"{self._n_cols}; repair or remove that line")
         try:
             values = np.array([row[4:] for row in rows], dtype=np.float32)
+            episode = np.array([row[0] for row in rows], dtype=np.int64)
+            step = np.array([row[1] for row in rows], dtype=np.int64)
+            intervention = np.array([Source(row[3]) is Source.INTERVENTION for row in rows], bool)
         except ValueError as exc:
             raise DatasetCorrupt(f"{self.path}: lines {first}-{first + len(rows) - 1} hold a "
-                                 f"value that is not a number ({exc}); repair that line") from exc
+                                 f"value that cannot be read ({exc}); repair that line") from exc
         if not np.all(np.isfinite(values)):
             raise DatasetCorrupt(f"{self.path}: lines {first}-{first + len(rows) - 1} hold a "
                                  "non-finite value; repair that line")
-        return values
+        return {"obs": values[:, :self._obs_dim], "actions": values[:, self._obs_dim:],
+                "intervention": intervention, "episode": episode, "step": step}
 
-    def _append(self, values: np.ndarray) -> None:
-        n, m = len(self), values.shape[0]
-        if n + m > self._obs.shape[0]:
-            capacity = max(n + m, 2 * self._obs.shape[0]) + self._chunk_rows
-            self._obs = _grown(self._obs, capacity)
-            self._actions = _grown(self._actions, capacity)
-        self._obs[n:n + m] = values[:, :self._obs_dim]
-        self._actions[n:n + m] = values[:, self._obs_dim:]
-        obs, actions = self._obs[:n + m], self._actions[:n + m]
-        obs.flags.writeable = False
-        actions.flags.writeable = False
-        self._view = DatasetView(obs, actions)
+    def _append(self, new: dict[str, np.ndarray]) -> None:
+        n, m = len(self), new["obs"].shape[0]
+        if n + m > self._cols["obs"].shape[0]:
+            capacity = max(n + m, 2 * self._cols["obs"].shape[0]) + self._chunk_rows
+            self._cols = {name: _grown(col, capacity) for name, col in self._cols.items()}
+        published = {}
+        for name, col in self._cols.items():
+            col[n:n + m] = new[name]
+            published[name] = col[:n + m]
+            published[name].flags.writeable = False
+        self._view = DatasetView(**published)
 
 
 def _grown(old: np.ndarray, capacity: int) -> np.ndarray:
-    new = np.empty((capacity, old.shape[1]), old.dtype)
+    new = np.empty((capacity, *old.shape[1:]), old.dtype)
     new[: old.shape[0]] = old
     return new
 

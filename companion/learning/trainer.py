@@ -117,10 +117,13 @@ class MlpTrainer(RmsPropState):
         self._flat_diff = self._diff.reshape(-1)
         self._norm = F32(2.0 / (n * s[-1]))  # d mean((y-t)^2) / dy = 2 (y-t) / numel
 
-    def step(self, obs_batch: np.ndarray, target_batch: np.ndarray) -> float:
+    def step(self, obs_batch: np.ndarray, target_batch: np.ndarray,
+             row_weights: np.ndarray | None = None) -> float:
         """One RMSprop update on ``(obs, target)`` rows; returns the MSE before the update.
 
-        Raises FloatingPointError on a non-finite loss, leaving weights and state untouched.
+        ``row_weights`` (one per row; None: all equal) make it the weighted mean of the rows'
+        squared errors (:func:`root_weights`). Raises FloatingPointError on a non-finite loss,
+        leaving weights and state untouched.
         """
         if obs_batch.shape[0] != self._raw.shape[0]:
             self._alloc(obs_batch.shape[0])
@@ -131,9 +134,14 @@ class MlpTrainer(RmsPropState):
         y = forward_into(obs_batch, self.mean, self.std, self._raw, xa, xv, A, self._y)
         last = len(A) - 1
         diff = np.subtract(y, target_batch, out=self._diff)
+        root = None if row_weights is None else root_weights(row_weights, obs_batch.shape[:-1])
+        if root is not None:
+            np.multiply(diff, root, out=diff)  # sqrt(w) (y - t): its squares are the weighted errors
         loss = float(np.dot(self._flat_diff, self._flat_diff) / F32(diff.size))
         if not math.isfinite(loss):
             raise FloatingPointError(f"training loss became {loss} at update {self.updates + 1}")
+        if root is not None:
+            np.multiply(diff, root, out=diff)  # w (y - t): the weighted loss's gradient
         np.multiply(y, y, out=mask[last])  # tanh' = 1 - y^2
         np.subtract(1, mask[last], out=mask[last])
         np.multiply(diff, self._norm, out=dz[last])
@@ -190,6 +198,16 @@ class MlpTrainer(RmsPropState):
         ws, bs = self.weights()
         return PolicySnapshot(ws, bs, Normalisation(self.mean, self.std), version, dataset_size_trained)
 
+
+
+def root_weights(row_weights: np.ndarray, rows_shape: tuple[int, ...]) -> np.ndarray:
+    """``sqrt(w / mean(w))`` per row as a column ``(..., n, 1)`` (float32): the weights scaled to
+    a mean of 1 over each minibatch (each ensemble member's), so the weighted loss of equal
+    weights is the plain MSE and keeps the loss threshold's meaning."""
+    w = np.asarray(row_weights, np.float32)
+    if w.shape != rows_shape or not np.all(w > 0):
+        raise ValueError(f"need positive weights of shape {rows_shape}, got {w.shape}")
+    return np.sqrt(w / w.mean(axis=-1, keepdims=True))[..., None]
 
 
 def one_blas_thread() -> Any:

@@ -100,7 +100,8 @@ def _batches(learner: Learner, updates: int) -> list[tuple[bytes, bytes]]:
     seen: list[tuple[bytes, bytes]] = []
     real_step = learner.trainer.step
 
-    def spy(obs: np.ndarray, actions: np.ndarray) -> float:
+    def spy(obs: np.ndarray, actions: np.ndarray, row_weights: np.ndarray | None = None) -> float:
+        assert row_weights is None  # no weighting asked for
         seen.append((obs.tobytes(), actions.tobytes()))
         return real_step(obs, actions)
 
