@@ -5,7 +5,9 @@ env and the batched evaluation all judge each new frame with :func:`judge_frame`
 ended episode with :func:`score`; nothing else decides an outcome or a success. Pure: the drivers
 bring the facts (steps taken, the landed state, the fence's verdict, the simulator's touchdown).
 
-Without a simulator, :func:`score_estimate` scores a touchdown on what the vehicle offers: its
+On a vehicle the companion flies, :func:`judge_vehicle` adds what the touchdown assist knows: its
+evidence of a touchdown where the vehicle cannot say, and that a vehicle standing is not below
+the fence. Without a simulator, :func:`score_estimate` scores a touchdown on what the vehicle offers: its
 position relative to home (and its autopilot's truth beside it), with the notes for the record.
 
 The order of :func:`judge_frame` is the session's: the time limit first (a frame after the last
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from companion.control.safety import FenceStatus, Geofence
+from companion.control.touchdown import Evidence, TouchdownAssist, touchdown_evidence
 from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
 
@@ -61,6 +64,36 @@ def judge_snapshot(steps_taken: int, max_steps: int, snap: VehicleSnapshot, fenc
     if fence is not None and telemetry_usable(snap):
         status = fence.check(home.relative(snap), standing=standing)
     return judge_frame(steps_taken, max_steps, down, status)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Whether an episode ends at a frame (``outcome`` None: fly the step), and what the driver
+    says and does about it: the companion's own touchdown ``evidence`` (a note for the record),
+    or why the vehicle is outside the fence (``fence_reason``: hold, then end)."""
+
+    outcome: str | None
+    evidence: Evidence | None = None
+    fence_reason: str | None = None
+
+
+def judge_vehicle(steps_taken: int, max_steps: int, snap: VehicleSnapshot | None, fence: Geofence | None,
+                  home: HomeFrame, assist: TouchdownAssist | None = None) -> Verdict:
+    """:func:`judge_snapshot` on a vehicle the companion flies with its touchdown ``assist``
+    (companion/control/touchdown.py): a touchdown is the landed state or, where the vehicle cannot
+    say, the assist's evidence; a vehicle the assist finds standing is not below the fence.
+    ``snap`` None: only after the last step (a driver recovers a lost link before a step)."""
+    if snap is None:
+        return Verdict(judge_frame(steps_taken, max_steps, False, None))
+    evidence = touchdown_evidence(snap, assist)
+    standing = assist is not None and assist.engaged
+    outcome = judge_snapshot(steps_taken, max_steps, snap, fence, home, touched_down=evidence is not None,
+                             standing=standing)
+    if outcome == TOUCHDOWN and evidence is not None and evidence.note:
+        return Verdict(outcome, evidence=evidence)
+    if outcome == FENCE and fence is not None:
+        return Verdict(outcome, fence_reason=fence.check(home.relative(snap), standing=standing).reason or "outside")
+    return Verdict(outcome)
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from companion.control.precland import PrecisionLander, fly_precland
 from companion.control.records import EpisodeRecord, StepView
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
-from companion.control.touchdown import VehicleTouchdown, touchdown_evidence
+from companion.control.touchdown import VehicleTouchdown
 from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset, Sample, Source
@@ -284,20 +284,15 @@ class EpisodeRunner:
         """Why the episode ends before this step: the one rule of companion/control/outcome.py
         (time, touchdown, geofence), then an end asked for from outside. ``flying`` False: the
         autopilot's precision landing flies (its own time limit, no companion geofence)."""
-        max_steps = self.p.cfg.max_steps if flying else sys.maxsize
-        if snap is None:  # only after the last step (the loop recovers the link before)
-            return outcome_rule.judge_frame(step, max_steps, False, None)
-        evidence = touchdown_evidence(snap, self.touchdown.assist)
-        standing = self.touchdown.assist is not None and self.touchdown.assist.engaged
-        outcome = outcome_rule.judge_snapshot(step, max_steps, snap, self.p.fence if flying else None, self.home,
-                                              touched_down=evidence is not None, standing=standing)
-        if outcome == outcome_rule.TOUCHDOWN and evidence is not None and evidence.note:
-            log.warning("%s", evidence.message)
-            self._evidence_note = evidence.note
-        elif outcome == outcome_rule.FENCE:
-            self._leave_fence(self.p.fence.check(self.home.relative(snap), standing=standing).reason or "outside")
-        if outcome is not None:
-            return outcome
+        verdict = outcome_rule.judge_vehicle(step, self.p.cfg.max_steps if flying else sys.maxsize, snap,
+                                             self.p.fence if flying else None, self.home, self.touchdown.assist)
+        if verdict.evidence is not None:
+            log.warning("%s", verdict.evidence.message)
+            self._evidence_note = verdict.evidence.note
+        elif verdict.fence_reason is not None:
+            self._leave_fence(verdict.fence_reason)
+        if verdict.outcome is not None:
+            return verdict.outcome
         return self.p.control.end_requested() if self.p.control is not None else None
 
     def _leave_fence(self, reason: str) -> None:

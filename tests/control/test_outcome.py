@@ -14,19 +14,22 @@ from typing import Any
 import numpy as np
 import pytest
 
-from companion.config import CompanionConfig, LearnerConfig, SafetyConfig
+from companion.config import CompanionConfig, LandingConfig, LearnerConfig, SafetyConfig
 from companion.control import outcome
 from companion.control.outcome import (
     FENCE,
     TIMEOUT,
     TOUCHDOWN,
     Score,
+    Verdict,
     judge_frame,
     judge_snapshot,
+    judge_vehicle,
     score,
     score_estimate,
 )
 from companion.control.safety import FenceStatus, Geofence
+from companion.control.touchdown import TouchdownAssist, TouchdownNeed
 from companion.experiment.batched_eval import evaluate_batched
 from companion.experiment.grid import TrainingRun, load_experiment
 from companion.experiment.runner import evaluate_checkpoint, trial_config
@@ -35,6 +38,7 @@ from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
 from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
+from companion.link.setpoints import VelocitySetpoint
 from companion.rl.batched_env import BatchedLandingEnv
 from companion.rl.gym_env import LandingEnv
 
@@ -89,6 +93,38 @@ def test_scores_by_estimate_with_and_without_a_judge() -> None:
     assert score(TOUCHDOWN, simulated=False, estimated_distance_m=0.31).success is None  # nobody judges
     assert score(TIMEOUT, simulated=False, judge_radius_m=0.5) == Score(success=False)
     assert score(TIMEOUT, simulated=False) == Score()
+
+
+def standing_assist(snap: VehicleSnapshot, steps: int) -> TouchdownAssist:
+    """An assist that has found the vehicle standing, asked down slowly, for ``steps`` steps."""
+    assist = TouchdownAssist(TouchdownNeed(0.275, "PX4 test"), LandingConfig(evidence_touchdown_s=1.0), 0.1,
+                             pad_height_m=1.5, home=HomeFrame())
+    while assist.engaged_steps_total < steps:
+        assist.apply(VelocitySetpoint(0.0, 0.0, 0.263, 0.0), snap)
+    return assist
+
+
+def test_a_vehicle_is_judged_by_its_landed_state_or_else_the_assists_evidence() -> None:
+    fence, home = Geofence(30.0, -1.0, 25.0), HomeFrame()
+    assert judge_vehicle(5, 5, None, fence, home) == Verdict(TIMEOUT)  # after the last step
+    assert judge_vehicle(4, 5, None, fence, home) == Verdict(None)
+    ground = dataclasses.replace(snapshot_at((0.0, 0.0, 0.0)), landed_state="ON_GROUND")
+    assert judge_vehicle(3, 10, ground, fence, home) == Verdict(TOUCHDOWN)  # its own word: no note
+    silent = dataclasses.replace(ground, landed_state="UNDEFINED")
+    assert judge_vehicle(3, 10, silent, fence, home, standing_assist(silent, 9)) == Verdict(None)  # not yet
+    verdict = judge_vehicle(3, 10, silent, fence, home, standing_assist(silent, 10))  # 1 s of it
+    assert verdict.outcome == TOUCHDOWN and verdict.evidence is not None
+    assert verdict.evidence.note == "touchdown judged by the companion: no landed state, standing"
+
+
+def test_a_vehicle_outside_the_fence_says_why_unless_it_stands() -> None:
+    fence, home = Geofence(5.0, -1.0, 25.0), HomeFrame()
+    assert judge_vehicle(1, 10, snapshot_at((6.0, 0.0, -3.0)), fence, home) == \
+        Verdict(FENCE, fence_reason="6.0 m from the centre, fence radius 5 m")
+    sunk = snapshot_at((0.0, 0.0, 1.4))  # 1.4 m below home: a drifting estimate, or flying below
+    assert judge_vehicle(1, 10, sunk, fence, home).fence_reason == "altitude -1.4 m below the fence's -1 m"
+    assert judge_vehicle(1, 10, sunk, fence, home, standing_assist(sunk, 1)) == Verdict(None)
+    assert judge_vehicle(1, 10, snapshot_at((6.0, 0.0, -3.0)), None, home) == Verdict(None)  # no fence kept
 
 
 PAD = (1.0, 2.0, -1.5)
