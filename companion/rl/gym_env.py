@@ -38,9 +38,10 @@ from companion.app import (
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control import outcome as outcome_rule
+from companion.control.lanes import score_by_truth, start_with_retries
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
-from companion.errors import ColError, ConfigError, LinkError
+from companion.errors import ColError, ConfigError
 from companion.inprocess import inprocess_vehicle
 from companion.link import open_link
 from companion.link.base import VehicleSnapshot
@@ -65,6 +66,14 @@ def observation_space() -> gym.spaces.Box:
     low[-3:] = (-PAD_CENTRE_CLIP, -PAD_CENTRE_CLIP, -1.0)
     high[-3:] = (PAD_CENTRE_CLIP, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP)
     return gym.spaces.Box(low, high, dtype=np.float32)
+
+
+def check_task(action_dims: int, descent_throttle: float) -> None:
+    """The task's settings (both envs'): ConfigError naming what is wrong."""
+    if action_dims not in (2, 3, 4):
+        raise ConfigError(f"action_dims must be 2 (pitch, roll), 3 (+ throttle) or 4 (+ yaw), got {action_dims}")
+    if not -1.0 <= descent_throttle <= 0.0:
+        raise ConfigError(f"descent_throttle is a stick value in [-1, 0] (down), got {descent_throttle}")
 
 
 def stick_values(action: np.ndarray, action_dims: int, descent_throttle: float) -> np.ndarray:
@@ -108,10 +117,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
     def __init__(self, action_dims: int = 2, cfg: CompanionConfig | None = None, *,
                  descent_throttle: float = DESCENT_THROTTLE, connection: str | None = None,
                  simulator: str | None = None, config_path: Path | None = None, inprocess: bool = False) -> None:
-        if action_dims not in (2, 3, 4):
-            raise ConfigError(f"action_dims must be 2 (pitch, roll), 3 (+ throttle) or 4 (+ yaw), got {action_dims}")
-        if not -1.0 <= descent_throttle <= 0.0:
-            raise ConfigError(f"descent_throttle is a stick value in [-1, 0] (down), got {descent_throttle}")
+        check_task(action_dims, descent_throttle)
         if connection is not None and simulator is None:
             raise ConfigError("an external SITL needs --simulator HOST:PORT too: resets and the reward come from its control surface")
         if inprocess and connection is not None:
@@ -177,7 +183,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         start_seed = self._next_seed if seed is None else int(seed)
         self._next_seed = start_seed + 1
         self._seed, self._steps, self._done = start_seed, 0, False
-        snap = self._start(start_seed)
+        snap = start_with_retries(self._runner.begin, start_seed)  # a starved SITL may miss one start
         obs = self._observe(snap)
         return obs, {"seed": start_seed}
 
@@ -211,19 +217,9 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         self._stack.close()
 
     # ----- pieces ----------------------------------------------------------------------------
-    def _start(self, seed: int, attempts: int = 3) -> VehicleSnapshot:
-        """The episode's first frame; a SITL starved of CPU may miss one start, so try again."""
-        for attempt in range(1, attempts + 1):
-            try:
-                return self._runner.begin(seed)
-            except LinkError as exc:
-                if attempt == attempts:
-                    raise
-                log.warning("episode start %d failed (%s); trying again", seed, exc)
-        raise AssertionError("unreachable")
-
     def _observe(self, snap: VehicleSnapshot) -> np.ndarray:
-        """The 15 values of this frame; non-finite telemetry repeats the last good ones."""
+        """The 15 values of this frame (the position as reported: see EpisodeLanes.observe);
+        non-finite telemetry repeats the last good ones."""
         try:
             vector = self._runner.p.observer.observe(snap, lockstep=True).to_vector()
         except ValueError as exc:
@@ -235,13 +231,11 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
     def _info(self, outcome: str | None) -> tuple[dict[str, Any], float]:
         """What happened, and the reward: scored by the one rule (companion/control/outcome.py)
         on the SITL's ground truth once the episode has ended."""
-        touchdown = self._simulator.truth().get("touchdown") if outcome == outcome_rule.TOUCHDOWN else None
-        return outcome_info(self._seed, self._steps, outcome, touchdown)
+        return outcome_info(self._seed, self._steps, outcome, score_by_truth(outcome or "", self._simulator.truth))
 
 
 def outcome_info(seed: int | None, steps: int, outcome: str | None,
-                 touchdown: dict[str, Any] | None) -> tuple[dict[str, Any], float]:
-    """A step's info and reward (the batched env's too): the one scoring rule on the truth."""
-    result = outcome_rule.score(outcome or "", simulated=True, touchdown=touchdown)
+                 result: outcome_rule.Score) -> tuple[dict[str, Any], float]:
+    """A step's info and reward (the batched env's too), ``result`` scored by the one rule."""
     return ({"seed": seed, "steps": steps, "outcome": outcome, "success": bool(result.success),
              "touchdown_distance_m": result.distance_m}, result.reward)

@@ -1,19 +1,19 @@
-"""One env of the batched landing env: its direct SITL and what ``LandingEnv``'s session keeps.
+"""One lane of the batched drivers: a direct SITL and what ``LandingEnv``'s session keeps.
 
-:class:`LandingLane` holds, for one env, what :class:`~companion.rl.gym_env.LandingEnv` keeps
-across steps besides the vehicle: the session's home frame (heights for the geofence), the
-episode's seed, step count and last good observation, and the episode start of
-:meth:`EpisodeRunner.begin <companion.control.session.EpisodeRunner.begin>` on a lockstep SITL
-with a control surface, step by step: reset; frames (answered with a zero setpoint) until the
-vehicle reports being in the air after it; one zero setpoint and its frame; OFFBOARD (asked again
-after five more frames if refused, three times); the whole start again, up to three times, on a
-link error, as ``LandingEnv`` does. The per-step arithmetic (commands, setpoints, observation
-vectors) is done for all lanes at once by :mod:`companion.rl.batched_env`.
+:class:`LandingLane` is the vehicle port of the batched episode core
+(:class:`~companion.control.lanes.LanePort`) on the SITL's own vehicle, scheduler and renderer,
+driven directly (:mod:`companion.rl.direct_sitl`), with the session's home frame, geofence and
+episode start: the start of :meth:`EpisodeRunner.begin <companion.control.session.EpisodeRunner.begin>`
+on a lockstep SITL with a control surface, step by step: reset; frames (answered with a zero
+setpoint) until the vehicle reports being in the air after it; one zero setpoint and its frame;
+OFFBOARD (asked again after five more frames if refused, three times); the whole start again, up
+to three times, on a link error, as ``LandingEnv`` does. It also keeps what a ``LandingEnv``
+shows a vec env's ``get_attr`` (its seeds, ``action_dims``, ``max_steps``, ...).
 """
 
 from __future__ import annotations
 
-import logging
+import contextlib
 from typing import Any
 
 import numpy as np
@@ -21,25 +21,33 @@ import numpy as np
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.episode_start import OFFBOARD_ATTEMPTS, RETRY_STREAM_FRAMES, TELEMETRY_FRAMES
+from companion.control.lanes import ACCEPTED, START_ATTEMPTS, start_with_retries
 from companion.control.safety import Geofence
 from companion.errors import CommandRejected, ConfigError, LinkError
+from companion.inprocess import one_opencv_thread
 from companion.link.base import VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
 from companion.link.mavlink_link import result_name
 from companion.rl.direct_sitl import DirectSitl
-from companion.vision.observation import OBS_DIM
 from sitl.config import SitlConfig
 
-log = logging.getLogger(__name__)
-START_ATTEMPTS = 3  # LandingEnv._start
-ACCEPTED = 0  # MAV_RESULT_ACCEPTED
+
+def open_lanes(cfg: CompanionConfig, sitl_cfg: SitlConfig, n: int, action_dims: int,
+               descent_throttle: float) -> tuple[contextlib.ExitStack, list[LandingLane]]:
+    """``n`` lanes, and the stack that gives OpenCV its threads back when closed (the lanes
+    render on one thread, as the in-process SITL does)."""
+    stack = contextlib.ExitStack()
+    stack.enter_context(one_opencv_thread())
+    try:
+        return stack, [LandingLane(cfg, sitl_cfg, action_dims, descent_throttle) for _ in range(n)]
+    except BaseException:
+        stack.close()
+        raise
 
 
 class LandingLane:
-    """One env: its SITL, seeds, step count, home frame and last observation. The attributes a
-    ``LandingEnv`` shows to a vec env's ``get_attr`` (``action_dims``, ``max_steps``, ...) are
-    here too, and :meth:`ground_truth` as ``LandingEnv.ground_truth``."""
+    """One vehicle of the batched drivers (module docstring)."""
 
     render_mode = None
 
@@ -49,13 +57,12 @@ class LandingLane:
         self.descent_throttle = descent_throttle
         self.max_steps = cfg.session.max_steps
         self.sitl = DirectSitl(sitl_cfg, cfg.link)
+        self.image_size_px = (self.sitl.cfg.camera.width_px, self.sitl.cfg.camera.height_px)
         self.home = HomeFrame()
         self.mapper = CommandMapper(cfg.commands)  # repairs of this env's actions, counted and logged
         self.fence = Geofence.from_config(cfg.safety)
         self.next_seed = cfg.session.seed
         self.seed: int | None = None
-        self.steps = 0
-        self.last_obs = np.zeros(OBS_DIM, dtype=np.float32)
         self.ended_truth: dict[str, Any] | None = None
         """The ground truth when this env's last episode ended (a vec env starts the next one at
         once, so :meth:`ground_truth` shows that one): where the episode touched down."""
@@ -69,14 +76,7 @@ class LandingLane:
     def begin(self, seed: int | None, attempts: int = START_ATTEMPTS) -> VehicleSnapshot:
         """Start an episode (``LandingEnv._start``): the first frame the agent observes.
         ``attempts=1`` starts as the session's ``EpisodeRunner.run`` does, without a retry."""
-        for attempt in range(1, attempts + 1):
-            try:
-                return self._start(seed)
-            except LinkError as exc:
-                if attempt == attempts:
-                    raise
-                log.warning("episode start %s failed (%s); trying again", seed, exc)
-        raise AssertionError("unreachable")
+        return start_with_retries(self._start, seed, attempts)
 
     def _start(self, seed: int | None) -> VehicleSnapshot:
         reply = self.sitl.reset(seed)
@@ -128,10 +128,18 @@ class LandingLane:
         """The session's HOLD: a zero body velocity, sent as is (no limiter)."""
         self.velocity((0.0, 0.0, 0.0), 0.0)
 
+    def request_hold_mode(self) -> tuple[int, str]:
+        """The dialect's hold mode, as the session asks it when the vehicle leaves the fence."""
+        return self.sitl.request_mode(self.dialect.hold_mode)
+
     def velocity(self, forward_right_down_m_s: tuple[float, float, float], yaw_rate_rad_s: float) -> None:
         """A body-frame velocity setpoint, in the dialect's frame and type mask."""
         self.sitl.command_velocity(self.dialect.body_frame, self.dialect.body_type_mask, forward_right_down_m_s,
                                    yaw_rate_rad_s)
+
+    def image(self) -> np.ndarray | None:
+        """The latest frame's camera image, as the companion receives it."""
+        return self.sitl.image()
 
     # ----- truth -------------------------------------------------------------------------------
     def ground_truth(self) -> dict[str, Any]:
