@@ -167,6 +167,23 @@ class LearnerConfig(Section):
         1.0, gt=0, le=1000, description="weight of a take-over's first takeover_steps samples (instead of "
         "intervention_weight)"
     )
+    holdout_stop: bool = Field(
+        False, description="hold out holdout_share of the samples (never trained on); between episodes "
+        "(budgeted mode) train until their loss stops improving, at most between_episode_updates, and "
+        "publish the weights' moving average at its best check"
+    )
+    holdout_share: float = Field(0.1, gt=0, lt=1, description="holdout_stop: share of the samples held out")
+    holdout_block_samples: int = Field(
+        10, ge=1, description="holdout_stop: samples are held out in blocks of this many consecutive ones"
+    )
+    holdout_check_every_updates: int = Field(100, ge=1, description="holdout_stop: updates between checks")
+    holdout_patience_checks: int = Field(
+        20, ge=1, description="holdout_stop: stop after this many checks without a better held-out loss"
+    )
+    weight_average_decay: float = Field(
+        0.999, ge=0, lt=1, description="holdout_stop: the published weights' exponential moving average, "
+        "per update; 0 = the last weights"
+    )
 
 
 class PilotConfig(Section):

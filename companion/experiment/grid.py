@@ -223,6 +223,12 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("learner", "intervention_weight"): 1.0,
     ("learner", "takeover_steps"): 0,
     ("learner", "takeover_weight"): 1.0,
+    ("learner", "holdout_stop"): False,
+    ("learner", "holdout_share"): 0.1,
+    ("learner", "holdout_block_samples"): 10,
+    ("learner", "holdout_check_every_updates"): 100,
+    ("learner", "holdout_patience_checks"): 20,
+    ("learner", "weight_average_decay"): 0.999,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's

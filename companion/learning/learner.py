@@ -30,6 +30,7 @@ from companion.learning.augment import Mirror
 from companion.learning.dataset import DatasetView
 from companion.learning.ensemble import EnsembleSnapshot, EnsembleTrainer
 from companion.learning.snapshot import Normalisation, PolicySnapshot, random_snapshot
+from companion.learning.stopping import HoldoutSession, HoldoutSplit, StopResult
 from companion.learning.trainer import MlpTrainer, one_blas_thread
 from companion.learning.weighting import WeightCache, weighting_on
 from companion.vision.observation import OBS_DIM, OBS_NAMES
@@ -92,6 +93,9 @@ class Learner:
         self._latest = self.trainer.snapshot(self.updates, self._trained_size)
         self._mirror = self._mirror_for(config, obs_dim)
         self._weights = WeightCache(config) if weighting_on(config) else None
+        self._split = (HoldoutSplit(config.holdout_share, config.holdout_block_samples, config.seed)
+                       if config.holdout_stop else None)
+        self._settled_size = -1  # dataset size of the last holdout_stop session
 
     @classmethod
     def _make_trainer(cls, config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
@@ -157,9 +161,9 @@ class Learner:
         """
         with self._lock:
             view = self.dataset.view()
-            n = len(view)
-            if n == 0:
-                raise ValueError("the dataset is empty; record samples before training")
+            if self._trainable_size(len(view)) == 0:
+                raise ValueError("the dataset holds no samples to train on (empty, or all held out); "
+                                 "record samples before training")
             obs, actions, weights = self._minibatch(view)
             try:
                 value = self.trainer.step(obs, actions, weights)
@@ -168,7 +172,7 @@ class Learner:
                     f"{exc}; check the dataset for extreme observations or lower learning_rate"
                 ) from None
             self.updates += 1
-            self._trained_size = n
+            self._trained_size = len(view)
             self._since_publish += 1
             self.last_loss = value
             return value
@@ -176,9 +180,14 @@ class Learner:
     def _minibatch(self, view: DatasetView) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """``batch_size`` rows drawn with replacement (an ensemble: a draw for every member),
         followed by their mirror images with ``mirror_augment``; their weights in the loss
-        (None: all equal, the paper's MSE)."""
+        (None: all equal, the paper's MSE). With ``holdout_stop`` only the training rows are
+        drawn from."""
         k = self.config.ensemble_members
-        idx = self.rng.integers(0, len(view), size=self.config.batch_size if k == 1 else (k, self.config.batch_size))
+        rows = None if self._split is None else self._split.training_rows(len(view))
+        idx = self.rng.integers(0, len(view) if rows is None else len(rows),
+                                size=self.config.batch_size if k == 1 else (k, self.config.batch_size))
+        if rows is not None:  # holdout_stop: the held-out rows are never drawn
+            idx = rows[idx]
         obs, actions = view.obs[idx], view.actions[idx]
         weights = None if self._weights is None else self._weights.of(view)[idx]
         if self._mirror is not None:
@@ -186,13 +195,17 @@ class Learner:
             weights = None if weights is None else np.concatenate([weights, weights], axis=-1)
         return obs, actions, weights
 
+    def _trainable_size(self, n: int) -> int:
+        """How many of the first ``n`` rows may be trained on (all but the held-out ones)."""
+        return n if self._split is None else len(self._split.training_rows(n))
+
     # -- the paper's loop ---------------------------------------------------------------
     @property
     def has_work(self) -> bool:
         """New samples exist (or some were discarded), or the current round has neither
-        converged nor hit the cap; never on an empty dataset."""
+        converged nor hit the cap; never on a dataset with nothing to train on."""
         n = len(self.dataset)
-        if n == 0:
+        if self._trainable_size(n) == 0:
             return False
         if n != self._round_size:
             return True
@@ -236,6 +249,43 @@ class Learner:
                 self.publish()
             return TrainResult(done, self.last_loss, self._converged, self._round_updates,
                                self._capped and not self._converged, len(self.dataset))
+
+    # -- holdout_stop: between episodes ------------------------------------------------
+    @property
+    def has_unsettled_samples(self) -> bool:
+        """The dataset changed since the last :meth:`train_to_holdout_stop` and has rows to
+        train on (the paper's round may have converged meanwhile: that does not count)."""
+        n = len(self.dataset)
+        return n != self._settled_size and self._trainable_size(n) > 0
+
+    def train_to_holdout_stop(self, cap: int) -> StopResult:
+        """Train until the held-out loss of the weights' moving average has not improved for
+        ``holdout_patience_checks`` checks, or for ``cap`` updates; then fly (and train on from)
+        the average at its best check (:mod:`companion.learning.stopping`). Without held-out
+        rows yet (the first samples), the paper's loop runs instead, for ``cap`` updates at most.
+        """
+        with self._lock:
+            if self._split is None:
+                raise ConfigError("train_to_holdout_stop needs learner.holdout_stop = true")
+            view = self.dataset.view()
+            held = self._split.held_rows(len(view))
+            if len(held) == 0:
+                ran = self.train_until_converged(budget=cap).updates
+                return StopResult(ran, 0, 0, math.nan, "no held-out samples")
+            session = HoldoutSession(self.trainer, view, held, None if self._weights is None else self._weights.of(view),
+                                     self.config)
+            done = 0
+            while done < cap and not session.done:
+                for _ in range(min(self.config.holdout_check_every_updates, cap - done)):
+                    self.step()
+                    session.after_update()
+                    done += 1
+                session.check()
+            self.trainer.load_flat_parameters(session.best)
+            self._settled_size = self._round_size = len(view)
+            self._round_updates, self._converged = 0, True  # settled: the next samples start a round
+            self.publish()
+            return session.result(done)
 
     def _should_publish(self) -> bool:
         fresh_data = self._trained_size > self._latest.dataset_size_trained

@@ -46,12 +46,20 @@ class BudgetedLearner:
 
     def between_episodes(self) -> int:
         """Train while the vehicle is repositioned: ``between_episode_updates`` at most (the
-        round still ends at convergence or ``max_updates``); the number of updates run.
+        round still ends at convergence or ``max_updates``); the number of updates run. With
+        ``holdout_stop``: until the held-out loss stops improving, at most that many
+        (:meth:`Learner.train_to_holdout_stop`), whenever the dataset changed.
 
         Without it the last episode's samples get only the updates of its final control steps
         before the checkpoint is written.
         """
         budget = self.learner.config.between_episode_updates
+        if self.learner.config.holdout_stop:  # to the held-out loss's stopping rule instead
+            if budget == 0 or not self.learner.has_unsettled_samples:
+                return 0
+            result = self.learner.train_to_holdout_stop(budget)
+            log.info("between episodes: %s", result)
+            return result.updates
         if budget == 0 or not self.learner.has_work:
             return 0
         return self.learner.train_until_converged(budget=budget).updates
@@ -255,6 +263,10 @@ def make_runner(learner: Learner) -> BudgetedLearner | LearnerThread | LearnerPr
     """
     if learner.config.mode == "budgeted":
         return BudgetedLearner(learner)
+    if learner.config.holdout_stop:
+        log.warning("holdout_stop trains to its stopping rule between episodes in budgeted mode only; "
+                    "the %s runner trains with the paper's loop (the held-out samples are still never "
+                    "trained on)", learner.config.mode)
     if learner.config.mode == "process":
         return LearnerProcess(learner)
     return LearnerThread(learner)

@@ -58,10 +58,26 @@ def forward_into(obs: np.ndarray, mean: np.ndarray, std: np.ndarray, raw: np.nda
 
 class RmsPropState:
     """RMSprop's state of a trainer (square averages ``_sq``, step count ``updates``): what
-    another process needs to go on. Shared by the single network and the ensemble."""
+    another process needs to go on; and the flat parameter buffer ``_p`` it updates. Shared by
+    the single network and the ensemble."""
 
+    _p: np.ndarray
     _sq: np.ndarray
     updates: int
+
+    def flat_parameters(self) -> np.ndarray:
+        """Every weight and bias in one read-only float32 view: it changes with every update
+        (copy it to keep it)."""
+        view = self._p.view()
+        view.flags.writeable = False
+        return view
+
+    def load_flat_parameters(self, params: np.ndarray) -> None:
+        """Set every weight and bias from :meth:`flat_parameters` of a trainer of this shape
+        (the optimiser's state stays)."""
+        if np.shape(params) != self._p.shape:
+            raise ValueError(f"{np.shape(params)} parameters, this trainer has {self._p.shape}")
+        self._p[:] = params
 
     def state(self) -> dict[str, Any]:
         return {"square_avg": self._sq.copy(), "updates": self.updates}
