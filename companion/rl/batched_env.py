@@ -9,8 +9,8 @@ are taken, is the same too). The episodes are flown by the batched episode core
 (:class:`~companion.control.lanes.EpisodeLanes`): the session's setpoint and observation
 arithmetic on stacks of rows (each row as that env's own, bit for bit), the one outcome rule and
 the one scoring rule (:mod:`companion.control.outcome`). This module adapts the core to
-stable-baselines3: the actions become sticks (:func:`~companion.rl.gym_env.stick_rows`), the
-rewards and infos are ``LandingEnv``'s (:func:`~companion.rl.gym_env.outcome_info`).
+stable-baselines3: the actions become sticks (:func:`~companion.rl.landing_task.stick_rows`), the
+rewards and infos are ``LandingEnv``'s (:func:`~companion.rl.landing_task.outcome_info`).
 
 So for the same seeds and actions it flies the same episodes as ``LandingEnv(inprocess=True)``:
 the same observations, rewards, terminations, outcomes and touchdowns
@@ -46,7 +46,8 @@ from companion.control.lanes import EpisodeLanes
 from companion.errors import ColError, ConfigError
 from companion.inprocess import sitl_config_for
 from companion.rl.grouped_vec_env import GroupedSubprocVecEnv, group_sizes
-from companion.rl.gym_env import (
+from companion.rl.landing_lane import open_lanes
+from companion.rl.landing_task import (
     ACTION_AXES,
     DESCENT_THROTTLE,
     check_task,
@@ -54,7 +55,6 @@ from companion.rl.gym_env import (
     outcome_info,
     stick_rows,
 )
-from companion.rl.landing_lane import open_lanes
 
 
 class BatchedLandingEnv(VecEnv):

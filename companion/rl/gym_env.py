@@ -1,16 +1,12 @@
-"""The landing task as a Gymnasium environment, over the real MAVLink path to a lockstep SITL.
+"""The landing task (companion/rl/landing_task.py) as a Gymnasium environment, over the real
+MAVLink path to a lockstep SITL (or the same code in this process).
 
-One ``step`` is one control tick of the session: the action becomes a JoystickCommand, goes
-through the same CommandMapper and SetpointLimiter as a person's or the policy's command, and
-answers the SITL's frame; the observation is the paper's 15 values
-(:meth:`companion.vision.observation.Observation.to_vector`) of the next frame. The reward is sparse,
-as in the paper: 1 on a touchdown the SITL's ground truth judges successful, else 0.
-
-Action subsets (the paper's PPO baselines), each value in [-1, 1]:
-
-* 2 -- (pitch, roll); throttle held at a constant descent, yaw 0;
-* 3 -- (pitch, roll, throttle); yaw 0;
-* 4 -- (pitch, roll, throttle, yaw).
+A driver of the session's episode loop: ``reset`` is :meth:`EpisodeRunner.begin
+<companion.control.session.EpisodeRunner.begin>`, one ``step`` is one control tick answered with
+:meth:`~companion.control.session.EpisodeRunner.answer` (the action's sticks through the same
+CommandMapper and SetpointLimiter as a person's or the policy's command), then the next frame's
+observation (the session's observer) and its judgement by the one rule of
+companion/control/outcome.py, scored by the one scoring rule on the SITL's ground truth.
 
 ``reset(seed=s)`` starts the SITL's episode ``s`` (the same starts as ``col eval --seed s``);
 ``reset()`` without a seed continues with the next seed (the first is ``session.seed``).
@@ -45,54 +41,24 @@ from companion.errors import ColError, ConfigError
 from companion.inprocess import inprocess_vehicle
 from companion.link import open_link
 from companion.link.base import VehicleSnapshot
+from companion.rl.landing_task import (
+    ACTION_AXES,
+    DESCENT_THROTTLE,
+    check_task,
+    observation_space,
+    outcome_info,
+    stick_rows,
+    stick_values,
+)
 from companion.simulator import SimulatorClient
-from companion.vision.observation import OBS_DIM, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP
+from companion.vision.observation import OBS_DIM
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 
 log = logging.getLogger(__name__)
-ACTION_AXES: tuple[str, ...] = ("pitch", "roll", "throttle", "yaw")
-"""What the action's entries control, in order; an n-action env controls the first n."""
-DESCENT_THROTTLE = -0.5
 IN_PROCESS_LINK_LOST_S = 1e9
-"""Constant throttle stick of the 2-action task: about 0.47 m/s down with the default
-commands (deadband 0.05, v_z_max 1 m/s), 8 m to the pad in about 180 steps."""
-
-
-def observation_space() -> gym.spaces.Box:
-    """Telemetry is never clipped (unbounded); the pad's three values have documented ranges."""
-    low = np.full(OBS_DIM, -np.inf, dtype=np.float32)
-    high = np.full(OBS_DIM, np.inf, dtype=np.float32)
-    low[-3:] = (-PAD_CENTRE_CLIP, -PAD_CENTRE_CLIP, -1.0)
-    high[-3:] = (PAD_CENTRE_CLIP, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP)
-    return gym.spaces.Box(low, high, dtype=np.float32)
-
-
-def check_task(action_dims: int, descent_throttle: float) -> None:
-    """The task's settings (both envs'): ConfigError naming what is wrong."""
-    if action_dims not in (2, 3, 4):
-        raise ConfigError(f"action_dims must be 2 (pitch, roll), 3 (+ throttle) or 4 (+ yaw), got {action_dims}")
-    if not -1.0 <= descent_throttle <= 0.0:
-        raise ConfigError(f"descent_throttle is a stick value in [-1, 0] (down), got {descent_throttle}")
-
-
-def stick_values(action: np.ndarray, action_dims: int, descent_throttle: float) -> np.ndarray:
-    """An action of ``action_dims`` values -> the four sticks (roll, pitch, yaw, throttle)."""
-    a = np.asarray(action, dtype=np.float64).reshape(-1)
-    if a.shape != (action_dims,):
-        raise ValueError(f"expected an action of {action_dims} values {ACTION_AXES[:action_dims]}, got shape {a.shape}")
-    return stick_rows(a[None, :], descent_throttle)[0]
-
-
-def stick_rows(actions: np.ndarray, descent_throttle: float) -> np.ndarray:
-    """Actions ``(n, action_dims)`` (float64) -> sticks ``(n, 4)`` (roll, pitch, yaw, throttle):
-    the values are copied, so a row is the same as that action alone (the batched env's)."""
-    n, action_dims = actions.shape
-    sticks = np.empty((n, 4))
-    sticks[:, 0], sticks[:, 1] = actions[:, 1], actions[:, 0]  # roll, pitch
-    sticks[:, 2] = actions[:, 3] if action_dims == 4 else 0.0
-    sticks[:, 3] = actions[:, 2] if action_dims >= 3 else descent_throttle
-    return sticks
+__all__ = ["ACTION_AXES", "DESCENT_THROTTLE", "LandingEnv", "observation_space", "outcome_info", "stick_rows",
+           "stick_values"]  # the task's names (companion/rl/landing_task.py), where they were first
 
 
 def _never_lost(cfg: CompanionConfig) -> CompanionConfig:
@@ -233,9 +199,3 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         on the SITL's ground truth once the episode has ended."""
         return outcome_info(self._seed, self._steps, outcome, score_by_truth(outcome or "", self._simulator.truth))
 
-
-def outcome_info(seed: int | None, steps: int, outcome: str | None,
-                 result: outcome_rule.Score) -> tuple[dict[str, Any], float]:
-    """A step's info and reward (the batched env's too), ``result`` scored by the one rule."""
-    return ({"seed": seed, "steps": steps, "outcome": outcome, "success": bool(result.success),
-             "touchdown_distance_m": result.distance_m}, result.reward)
