@@ -22,13 +22,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-import numpy as np
-
 from companion.commands import CommandMapper, JoystickCommand
 from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
-from companion.control.arbiter import Arbiter, Phase
-from companion.control.ask import AskAction, AskEvent, HelpAsker
+from companion.control.arbiter import Phase
+from companion.control.ask import AskEvent, HelpAsker
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
 from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapReporter
@@ -38,34 +36,20 @@ from companion.control.precland import PrecisionLander, fly_precland
 from companion.control.records import EpisodeRecord, StepView
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
+from companion.control.step import PolicyRunner, StepPipeline
 from companion.control.touchdown import VehicleTouchdown
 from companion.errors import ColError, LinkError, LinkLost
 from companion.inputs.base import HumanInput
-from companion.learning.dataset import HumanDataset, Sample, Source
-from companion.learning.ensemble import disagreement
-from companion.learning.snapshot import PolicySnapshot
+from companion.learning.dataset import HumanDataset
 from companion.link.base import VehicleLink, VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
-from companion.link.setpoints import VelocitySetpoint
 from companion.link.truth import true_distance_m
 from companion.simulator import SimulatorClient
 from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
-
-
-class PolicyRunner(Protocol):
-    """What the session needs of a learner runner (BudgetedLearner, LearnerThread)."""
-
-    @property
-    def latest_snapshot(self) -> PolicySnapshot: ...
-
-    @property
-    def error(self) -> BaseException | None: ...
-
-    def on_control_step(self, tick_start_s: float | None = None) -> PolicySnapshot: ...
 
 
 class EpisodeControl(Protocol):
@@ -118,9 +102,7 @@ class EpisodeRunner:
 
     def __init__(self, parts: EpisodeParts) -> None:
         self.p = parts
-        self.arbiter = Arbiter()
         self.period_s = 1.0 / parts.cfg.control_rate_hz
-        self._warned_learner = False
         self._tick_start_s: float | None = None
         self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
         """The latest steps' own compute times (bounded: a long run must not grow without end)."""
@@ -141,6 +123,8 @@ class EpisodeRunner:
         self.help = (HelpSession(parts.asker, parts.human, self.port, self.period_s, parts.on_ask_event)
                      if parts.asker is not None else None)
         """Asking for help (companion/control/help_session.py); None: the session never asks."""
+        self.step = StepPipeline(parts, self.period_s, self.help, self.touchdown)
+        """Each step's decision (companion/control/step.py)."""
 
     @property
     def dialect(self) -> Dialect:
@@ -168,27 +152,12 @@ class EpisodeRunner:
                                        control.end_requested if control is not None else lambda: None)
 
     # ----- the loop --------------------------------------------------------------------------
-    def _policy_command(self, obs_vector: np.ndarray) -> tuple[JoystickCommand, int | None, float]:
-        """The policy's command, its version and its disagreement (NaN: a single network)."""
-        runner = self.p.runner
-        if runner is None:
-            return JoystickCommand.neutral(), None, math.nan
-        if runner.error is not None and not self._warned_learner:
-            self._warned_learner = True
-            log.error("learner failed (%s); flying the last good policy", runner.error)
-        snap = runner.latest_snapshot
-        action, score = disagreement(snap, obs_vector)
-        return self.p.mapper.command_from_values(action), snap.version, score
-
     def run(self, episode: int, phase: Phase, seed: int | None) -> EpisodeRecord:
         """Fly one episode; never raises for what happens in flight (it is in the record)."""
         wall0 = time.monotonic()
         self._fresh.reset()  # the first step needs only complete telemetry
         self.gaps.begin()
-        self.arbiter.reset()
-        self.p.human.reset()
-        self.p.limiter.reset()
-        self.touchdown.reset()
+        self.step.reset()
         self._begin_asking(episode)
         try:
             first, notes = self.starter.start(seed)
@@ -277,7 +246,7 @@ class EpisodeRunner:
         """No newer telemetry since the last step: the zero-velocity hold (through the limiter,
         as a refused input's neutral sticks), nobody asked, nothing recorded."""
         self.gaps.note(STALE_TELEMETRY)
-        self.port.send(self.p.limiter.apply(self.p.mapper.to_setpoint(JoystickCommand.neutral()), self.period_s))
+        self.port.send(self.step.limited(JoystickCommand.neutral()))
         self.trace.append((step, math.nan, "hold"))
 
     def _stop_reason(self, step: int, snap: VehicleSnapshot | None, flying: bool = True) -> str | None:
@@ -308,10 +277,7 @@ class EpisodeRunner:
     def begin(self, seed: int | None) -> VehicleSnapshot:
         """Start an episode as :meth:`run` does (reset or fly to the start, then OFFBOARD) and
         return its first frame; the caller then answers each frame with :meth:`answer`."""
-        self.arbiter.reset()
-        self.p.human.reset()
-        self.p.limiter.reset()
-        self.touchdown.reset()
+        self.step.reset()
         return self.starter.start(seed)[0]
 
     def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
@@ -320,7 +286,7 @@ class EpisodeRunner:
         if command is None:
             self.port.send(HOLD)
         else:
-            self.port.send(self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s))
+            self.port.send(self.step.limited(command))
         return self.port.next_snapshot()
 
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
@@ -335,43 +301,27 @@ class EpisodeRunner:
             self.port.send(HOLD)
             return None
         self.gaps.note(VIDEO_MISSING if obs.frame_missing else None)
-        human = self.help.read_human(phase, obs) if self.help is not None else self.p.human.read(obs)
-        policy_cmd, version, score = self._policy_command(vector)
-        action = self.help.action(phase, step, score, human) if self.help is not None else AskAction.POLICY
-        decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing, asked=action)
-        sp = HOLD  # what a watcher is shown while the vehicle holds or lands on a request
+        choice = self.step.decide(phase, step, obs, vector, snap)
         lost: LinkLost | None = None
         try:
-            if decision.source in ("hold", "land"):
+            if choice.setpoint is None:
                 assert self.help is not None  # only asking holds or lands
-                self.help.carry_out(action, snap)
+                self.help.carry_out(choice.action, snap)
             else:
-                sp = self._setpoint(decision.command, snap)
-                self.port.send(sp)
-            self.trace.append((step, score, decision.source))
+                self.port.send(choice.setpoint)
+            self.trace.append((step, choice.score, choice.decision.source))
         except LinkLost as exc:  # silent since this step's telemetry: still a true sample; then recover
             lost = exc
         self.step_latencies_s.append(time.perf_counter() - t_start)
-        if decision.record and self.p.dataset is not None:
-            source = Source.DEMONSTRATION if decision.tag == "demonstration" else Source.INTERVENTION
-            self.p.dataset.append(Sample(episode, step, (obs.time_boot_ms - t0_ms) / 1000.0, source, vector,
-                                         decision.command.to_array()))
+        if self.p.dataset is not None and (sample := choice.sample(episode, step, t0_ms, obs, vector)) is not None:
+            self.p.dataset.append(sample)
         if self.p.control is not None:
-            self.p.control.on_step(StepView(episode, step, phase, obs, decision, sp, version,
-                                            human.override_held, human.hold, self.p.observer.last_frame_number))
+            self.p.control.on_step(StepView(episode, step, phase, obs, choice.decision, choice.shown, choice.version,
+                                            choice.human.override_held, choice.human.hold,
+                                            self.p.observer.last_frame_number))
         if lost is not None:
             raise lost
-        return version
-
-    def _setpoint(self, command: JoystickCommand, snap: VehicleSnapshot) -> VelocitySetpoint:
-        """The command as the vehicle is sent it: mapped, limited, then the touchdown assist. The
-        assist comes after the limiter on purpose: a land detector needs a descent the limiter's
-        rate limit would spread over seconds; it only ever asks for a descent within the
-        commands' limits (companion/control/touchdown.py, tests/control/test_touchdown.py)."""
-        if self.help is not None and self.help.release_hold():  # rate limits start from what is asked now
-            self.p.limiter.reset()
-        sp = self.p.limiter.apply(self.p.mapper.to_setpoint(command), self.period_s)
-        return self.touchdown.assist.apply(sp, snap) if self.touchdown.assist is not None else sp
+        return choice.version
 
     def _supervised_steps(self, phase: Phase, steps: int) -> int:
         if phase is Phase.AUTONOMOUS:
@@ -402,7 +352,7 @@ class EpisodeRunner:
                 notes: list[str]) -> EpisodeRecord:
         result = self._score(outcome, snap, notes)
         return EpisodeRecord.of_episode(
-            episode, phase, seed, steps, outcome, result, involvement=self.arbiter.summary(),
+            episode, phase, seed, steps, outcome, result, involvement=self.step.arbiter.summary(),
             control_period_s=self.period_s, policy_version=version,
             dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
             sim_time_s=((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0,
