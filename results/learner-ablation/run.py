@@ -3,13 +3,16 @@ results/learner-ablation/PLAN.md before any of its runs. Steps, from the reposit
 resumable (`col experiment` resumes a results folder; a finished arm is skipped):
 
     python results/learner-ablation/run.py configs            # write each arm's experiment file
+    python results/learner-ablation/run.py code               # the library the runs use: HEAD, exported
     python results/learner-ablation/run.py run [ARM ...]      # col experiment per arm (runs/learner-ablation/)
     python results/learner-ablation/run.py collect [ARM ...]  # per trial and per start into results/learner-ablation/
     python results/learner-ablation/run.py analyse            # summary.json and table.md, as PLAN.md says
 
 An arm is SET-SWITCH: SET scripted (P1-P4, the paper's level, configs/paper.toml) or human-like
 (H01-H08, configs/human-like.toml); SWITCH base (every switch off: the paper's CoL) or one switch
-on. Every arm trains CoL at 8 and 20 interactions, replicates 0 and 1, and flies each final
+on. The runs use one commit's library, exported clean (``git archive``) to
+runs/learner-ablation/code/ (its commit in COMMIT there), whatever the working tree holds
+meanwhile. Every arm trains CoL at 8 and 20 interactions, replicates 0 and 1, and flies each final
 policy on the 50 validation starts from seed 600000, never on the held-out starts from 100000.
 """
 
@@ -17,7 +20,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -25,6 +30,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 RUNS = ROOT / "runs" / "learner-ablation"
+CODE = RUNS / "code"
 SETS = {"scripted": ("configs/paper.toml", ["P1", "P2", "P3", "P4"]),
         "human-like": ("configs/human-like.toml", [f"H{i:02d}" for i in range(1, 9)])}
 SWITCHES: dict[str, dict[str, object]] = {
@@ -71,13 +77,30 @@ def configs() -> None:
         print(path.relative_to(ROOT))
 
 
+def code() -> None:
+    """runs/learner-ablation/code/: the repository at HEAD as committed."""
+    if (CODE / "COMMIT").exists():
+        print(f"runs/learner-ablation/code holds {(CODE / 'COMMIT').read_text().strip()} already")
+        return
+    shutil.rmtree(CODE, ignore_errors=True)
+    CODE.mkdir(parents=True)
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                          check=True).stdout.strip()
+    archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(CODE)], input=archive, check=True)
+    (CODE / "COMMIT").write_text(head + "\n")
+    print(f"runs/learner-ablation/code: {head}")
+
+
 def run(arms: list[str]) -> None:
+    """``col experiment`` per arm, from inside the export (its configs are the committed ones)."""
+    if not (CODE / "COMMIT").exists():
+        raise SystemExit("no exported library: run the 'code' step first")
     for arm in arms:
-        out = RUNS / arm
-        cmd = [str(ROOT / ".venv/bin/col"), "experiment", "--config", str(HERE / "configs" / f"{arm}.toml"),
-               "--workers", "2", "--out", str(out)]
+        cmd = [str(ROOT / ".venv/bin/col"), "experiment", "--config", f"results/learner-ablation/configs/{arm}.toml",
+               "--workers", "2", "--out", str(RUNS / arm)]
         print(" ".join(cmd), flush=True)
-        subprocess.run(cmd, check=True, cwd=ROOT)
+        subprocess.run(cmd, check=True, cwd=CODE, env={**os.environ, "PYTHONPATH": str(CODE)})
 
 
 def collect(arms: list[str]) -> None:
@@ -152,13 +175,13 @@ def analyse() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("step", choices=("configs", "run", "collect", "analyse"))
+    parser.add_argument("step", choices=("configs", "code", "run", "collect", "analyse"))
     parser.add_argument("arms", nargs="*", help=f"some of {ARMS} (default: all)")
     args = parser.parse_args()
     arms = args.arms or ARMS
     if unknown := [a for a in arms if a not in ARMS]:
         parser.error(f"unknown arms {unknown}; use some of {ARMS}")
-    {"configs": lambda: configs(), "run": lambda: run(arms), "collect": lambda: collect(arms),
+    {"configs": lambda: configs(), "code": lambda: code(), "run": lambda: run(arms), "collect": lambda: collect(arms),
      "analyse": lambda: analyse()}[args.step]()
 
 
