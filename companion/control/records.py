@@ -35,6 +35,15 @@ class StepView:
 
 
 
+def supervised_steps(phase: Phase, steps: int, engaged_steps: int | None) -> int:
+    """The steps of an episode the person had to watch (:attr:`EpisodeRecord.supervised_steps`):
+    none of an autonomous one; ``engaged_steps`` for a person who watches only when asked (the
+    steps from each request until they handed back); else every step (None: they watch throughout)."""
+    if phase is Phase.AUTONOMOUS:
+        return 0
+    return steps if engaged_steps is None else engaged_steps
+
+
 @dataclass(frozen=True)
 class EpisodeRecord:
     """One JSON line per episode (runs/<run>/episodes.jsonl)."""

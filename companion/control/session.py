@@ -33,7 +33,7 @@ from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Ga
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander, fly_precland
-from companion.control.records import EpisodeRecord, StepView
+from companion.control.records import EpisodeRecord, StepView, supervised_steps
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
 from companion.control.step import PolicyRunner, StepPipeline
@@ -323,12 +323,6 @@ class EpisodeRunner:
             raise lost
         return choice.version
 
-    def _supervised_steps(self, phase: Phase, steps: int) -> int:
-        if phase is Phase.AUTONOMOUS:
-            return 0
-        engaged = self.help.supervised_steps(phase, steps) if self.help is not None else None
-        return steps if engaged is None else engaged
-
     def _score(self, outcome: str, snap: VehicleSnapshot | None, notes: list[str]) -> outcome_rule.Score:
         """The one scoring rule (companion/control/outcome.py) on what this vehicle offers: the
         simulator's truth, else the estimate relative to home (and the autopilot's truth)."""
@@ -358,5 +352,6 @@ class EpisodeRunner:
             sim_time_s=((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0,
             wall_time_s=time.monotonic() - wall0, notes=notes,
             ask=self.help.summary if self.help is not None else None,
-            supervised_steps=self._supervised_steps(phase, steps),
+            supervised_steps=supervised_steps(
+                phase, steps, self.help.supervised_steps(phase, steps) if self.help is not None else None),
             ask_threshold=self.p.asker.threshold if self.p.asker is not None else None)

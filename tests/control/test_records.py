@@ -8,7 +8,7 @@ import math
 from companion.control.arbiter import InterventionSummary, Phase
 from companion.control.ask import AskSummary
 from companion.control.outcome import Score
-from companion.control.records import EpisodeRecord
+from companion.control.records import EpisodeRecord, supervised_steps
 
 INVOLVEMENT = InterventionSummary(steps=40, human_steps=9, recorded_steps=7, interventions=2, durations_steps=(3, 4))
 
@@ -39,3 +39,10 @@ def test_the_requests_for_help_and_their_threshold() -> None:
     r = record(ask=ask, supervised_steps=12, ask_threshold=0.0123456789)
     assert (r.requests, r.requests_unanswered, r.supervised_steps, r.ask_threshold) == (3, 1, 12, 0.01234568)
     assert record(ask=ask, ask_threshold=math.inf).ask_threshold is None  # not calibrated yet: none
+
+
+def test_the_steps_a_person_had_to_watch() -> None:
+    assert supervised_steps(Phase.AUTONOMOUS, 80, 12) == 0
+    assert supervised_steps(Phase.DEMONSTRATION, 80, None) == 80
+    assert supervised_steps(Phase.INTERVENTION, 80, None) == 80  # watching throughout
+    assert supervised_steps(Phase.INTERVENTION, 80, 12) == 12  # watching only when asked
