@@ -29,7 +29,13 @@ from companion.control.arbiter import Phase
 from companion.control.ask import AskEvent, HelpAsker
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
-from companion.control.gaps import LINK_LOST, STALE_TELEMETRY, VIDEO_MISSING, Gap, GapReporter
+from companion.control.gaps import (
+    LINK_LOST,
+    STALE_TELEMETRY,
+    VIDEO_MISSING,
+    GapReporter,
+    GapWatcher,
+)
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander, fly_precland
@@ -52,16 +58,12 @@ log = logging.getLogger(__name__)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
 
 
-class EpisodeControl(Protocol):
-    """An operator's hand on a running session (the console): watches each step and may end
-    the episode or the run. ``run`` calls ``end_requested`` every step; a reason ends the
-    episode now with that outcome."""
+class EpisodeControl(GapWatcher, Protocol):
+    """An operator's hand on a running session (the console): watches each step and each gap
+    (companion/control/gaps.py) and may end the episode or the run. ``run`` calls
+    ``end_requested`` every step; a reason ends the episode now with that outcome."""
 
     def on_step(self, view: StepView) -> None: ...
-
-    def on_gap(self, gap: Gap | None) -> None:
-        """The steps stopped being recordable for a vehicle-side reason (``gap``), or are whole
-        again (None); called when that changes (companion/control/gaps.py)."""
 
     def end_requested(self) -> str | None: ...
 
