@@ -15,8 +15,9 @@ import logging
 import time
 from collections.abc import Callable
 
-from companion.errors import LinkLost
+from companion.errors import ColError, LinkError, LinkLost
 from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
 from companion.link.setpoints import VelocitySetpoint
 
@@ -54,12 +55,25 @@ class Ticker:
 class LinkPort:
     """One vehicle behind a link, stepped at the control rate (module docstring)."""
 
-    def __init__(self, link: VehicleLink, lockstep: bool, control_rate_hz: float, home: HomeFrame) -> None:
+    def __init__(self, link: VehicleLink, lockstep: bool, control_rate_hz: float, home: HomeFrame,
+                 dialect: Dialect | None = None) -> None:
         self.link, self.lockstep, self.home = link, lockstep, home
         self.control_rate_hz = control_rate_hz
         self.frame_ms = -1
         """Lockstep: the frame being answered (-1: none yet, or the frames start again)."""
         self._ticker: Ticker | None = None
+        self._dialect = dialect
+
+    @property
+    def dialect(self) -> Dialect:
+        """How this vehicle's autopilot does offboard, hold, land and take-off: as given, else
+        from its HEARTBEAT (LinkError while none has come)."""
+        if self._dialect is None:
+            snap = self.link.state()
+            if snap is None:
+                raise LinkError("no HEARTBEAT from the vehicle yet: cannot tell its autopilot")
+            self._dialect = dialect_for(snap.autopilot)
+        return self._dialect
 
     @property
     def echo(self) -> int | None:
@@ -68,6 +82,15 @@ class LinkPort:
 
     def send(self, sp: VelocitySetpoint) -> None:
         self.link.send_velocity_body(sp, echo_time_boot_ms=self.echo)
+
+    def hold_in(self, mode: str) -> None:
+        """Hold: the zero setpoint (in lockstep it answers the frame), then ``mode`` (the
+        dialect's hold mode); a refused mode is logged, the hold stands."""
+        self.send(HOLD)
+        try:
+            self.link.set_mode(mode)
+        except ColError as exc:
+            log.error("could not switch to hold: %s", exc)
 
     def send_position(self, north_m: float, east_m: float, down_m: float, yaw_rad: float) -> None:
         self.link.send_position_ned(north_m, east_m, down_m, yaw_rad, echo_time_boot_ms=self.echo)

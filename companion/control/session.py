@@ -44,11 +44,11 @@ from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
 from companion.control.step import PolicyRunner, StepPipeline
 from companion.control.touchdown import VehicleTouchdown
-from companion.errors import ColError, LinkError, LinkLost
+from companion.errors import ColError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset
 from companion.link.base import VehicleLink, VehicleSnapshot
-from companion.link.dialect import Dialect, dialect_for
+from companion.link.dialect import Dialect
 from companion.link.home import HomeFrame
 from companion.link.truth import true_distance_m
 from companion.simulator import SimulatorClient
@@ -108,14 +108,13 @@ class EpisodeRunner:
         self._tick_start_s: float | None = None
         self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
         """The latest steps' own compute times (bounded: a long run must not grow without end)."""
-        self._dialect = parts.dialect
         self._evidence_note: str | None = None
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
         self.touchdown = VehicleTouchdown(parts.landing, self.period_s, -parts.cfg.pad_ned_m[2], self.home,
                                           parts.limiter.max_down_m_s, parts.link)
         """Touchdowns the vehicle's land detector recognises (companion/control/touchdown.py)."""
-        self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home)
+        self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home, parts.dialect)
         self.starter = EpisodeStart(self.port, parts, lambda: self.dialect)
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
@@ -130,13 +129,8 @@ class EpisodeRunner:
 
     @property
     def dialect(self) -> Dialect:
-        """How this vehicle's autopilot does offboard, hold, land and take-off."""
-        if self._dialect is None:
-            snap = self.p.link.state()
-            if snap is None:
-                raise LinkError("no HEARTBEAT from the vehicle yet: cannot tell its autopilot")
-            self._dialect = dialect_for(snap.autopilot)
-        return self._dialect
+        """How this vehicle's autopilot does offboard, hold, land and take-off (LinkPort.dialect)."""
+        return self.port.dialect
 
     def leave_safe(self) -> str:
         """The configured end-of-run state (land or hold), after a run or a failed episode."""
@@ -260,20 +254,12 @@ class EpisodeRunner:
         if verdict.evidence is not None:
             log.warning("%s", verdict.evidence.message)
             self._evidence_note = verdict.evidence.note
-        elif verdict.fence_reason is not None:
-            self._leave_fence(verdict.fence_reason)
+        elif verdict.fence_reason is not None:  # hold, and the hold mode, before the episode ends
+            log.warning("geofence: %s; holding and ending the episode", verdict.fence_reason)
+            self.port.hold_in(self.dialect.hold_mode)
         if verdict.outcome is not None:
             return verdict.outcome
         return self.p.control.end_requested() if self.p.control is not None else None
-
-    def _leave_fence(self, reason: str) -> None:
-        """Outside the geofence: hold, and the hold mode, before the episode ends."""
-        log.warning("geofence: %s; holding and ending the episode", reason)
-        self.port.send(HOLD)
-        try:
-            self.p.link.set_mode(self.dialect.hold_mode)
-        except ColError as exc:
-            log.error("could not switch to hold: %s", exc)
 
     # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
     def begin(self, seed: int | None) -> VehicleSnapshot:
