@@ -1,13 +1,18 @@
-"""The episode loop: observation -> (person | policy) -> setpoint, at the control rate.
+"""The episode loop on one vehicle over MAVLink: the session's driver of the episode core.
 
 One control step: read the frame (lockstep: wait for the SITL's frame marker; real time: a
-ticker at ``control_rate_hz``), build the observation, ask the person and the policy, let the
-arbiter choose, map to a body-velocity setpoint, send it (echoing the frame in lockstep), record
-the person's sample, then give the learner its turn. A step whose telemetry is no newer than the
-last step's (companion/control/freshness.py) holds instead and records nothing, and a step whose
-camera frame is missing flies but is not recorded (companion/control/gaps.py). Episodes start through the simulator's
-control surface when there is one, else by flying to the start point; they end on touchdown or
-after ``max_steps``.
+ticker at ``control_rate_hz``; companion/control/link_port.py), judge it by the one rule
+(companion/control/outcome.py), build the observation, let the step decide (the person and the
+policy, the arbiter, mapper, limiter and touchdown assist; companion/control/step.py), send the
+setpoint (echoing the frame in lockstep) or have asking for help hold or land
+(companion/control/help_session.py), record the person's sample, then give the learner its turn.
+A step whose telemetry is no newer than the last step's (companion/control/freshness.py) holds
+instead and records nothing, and a step whose camera frame is missing flies but is not recorded
+(companion/control/gaps.py). Episodes start through the simulator's control surface when there
+is one, else by flying to the start point (companion/control/episode_start.py); with a precision
+lander the autopilot lands instead (companion/control/precland.py). They end on touchdown, at the
+geofence or after ``max_steps``, and are scored and recorded by the core
+(companion/control/records.py).
 """
 
 from __future__ import annotations
