@@ -128,6 +128,7 @@ class EpisodeLanes:
         return snap
 
     def snap(self, i: int) -> VehicleSnapshot:
+        """Lane ``i``'s latest telemetry."""
         snap = self.snaps[i]
         assert snap is not None, "a lane is judged, observed and flown after its episode began"
         return snap
@@ -141,7 +142,7 @@ class EpisodeLanes:
             lane = self.lanes[i]
             outcome = outcome_rule.judge_snapshot(self.steps[i], self.max_steps, self.snap(i), lane.fence, lane.home)
             if outcome == outcome_rule.FENCE:
-                log.warning("geofence: lane %d outside at step %d; holding and ending the episode", i, self.steps[i])
+                log.info("geofence: lane %d outside at step %d; holding and ending the episode", i, self.steps[i])
                 lane.hold()
                 result, why = lane.request_hold_mode()
                 if result != ACCEPTED:
@@ -184,19 +185,19 @@ class EpisodeLanes:
                 self.lanes[i].velocity((forward, right, down), yaw_rate)
         for i in holding:
             self.lanes[i].hold()
-        for lanes in (index, holding):
-            for i in lanes:
+        for group in (index, holding):
+            for i in group:
                 self.snaps[i] = self.lanes[i].next_frame()
                 self.steps[i] += 1
 
     def _repaired(self, sticks: np.ndarray, index: Sequence[int]) -> np.ndarray:
         """Rows with a non-finite or out-of-range value through their lane's mapper (repaired,
         counted, logged, as the session does); the others are valid commands already."""
-        bad = ~(np.isfinite(sticks) & (np.abs(sticks) <= 1.0)).all(axis=1)
-        if not bad.any():
+        valid = np.isfinite(sticks) & (np.abs(sticks) <= 1.0)
+        if valid.all():
             return sticks
         sticks = sticks.copy()
-        for row in np.flatnonzero(bad).tolist():
+        for row in np.flatnonzero(~valid.all(axis=1)).tolist():
             sticks[row] = self.lanes[index[row]].mapper.command_from_values(sticks[row]).to_array()
         return sticks
 

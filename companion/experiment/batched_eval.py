@@ -200,13 +200,14 @@ class BatchedEvaluator:
         """One control step of every flight: the policy's command, or a hold on unusable telemetry."""
         rows = list(flights)
         vectors, usable = self.core.observe(rows)
-        acting = [i for i, ok in zip(rows, usable.tolist(), strict=True) if ok]
+        good = usable.tolist()
+        acting = [i for i, ok in zip(rows, good, strict=True) if ok]
         sticks = np.empty((len(acting), 4))
         for row, vector in enumerate(vectors[usable]):
             sticks[row], _ = disagreement(self.snapshot, vector.copy())  # one vector, as the session
-        for i, ok in zip(rows, usable.tolist(), strict=True):
+        for i, ok in zip(rows, good, strict=True):
             flights[i].version = self.snapshot.version if ok else None
-        self.core.fly(sticks, acting, holding=[i for i in rows if i not in acting])
+        self.core.fly(sticks, acting, holding=[i for i, ok in zip(rows, good, strict=True) if not ok])
 
     def _record(self, i: int, flight: _Flight, outcome: str) -> EvalEpisode:
         """``EpisodeRunner._record`` with a simulator, for an autonomous episode: the one rule.
