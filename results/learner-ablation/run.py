@@ -3,7 +3,7 @@ results/learner-ablation/PLAN.md before any of its runs. Steps, from the reposit
 resumable (`col experiment` resumes a results folder; a finished arm is skipped):
 
     python results/learner-ablation/run.py configs            # write each arm's experiment file
-    python results/learner-ablation/run.py code               # the library the runs use: HEAD, exported
+    python results/learner-ablation/run.py code [--commit C]  # the library the runs use: HEAD, exported
     python results/learner-ablation/run.py run [ARM ...]      # col experiment per arm (runs/learner-ablation/)
     python results/learner-ablation/run.py collect [ARM ...]  # per trial and per start into results/learner-ablation/
     python results/learner-ablation/run.py analyse            # summary.json and table.md, as PLAN.md says
@@ -77,14 +77,15 @@ def configs() -> None:
         print(path.relative_to(ROOT))
 
 
-def code() -> None:
-    """runs/learner-ablation/code/: the repository at HEAD as committed."""
+def code(commit: str = "HEAD") -> None:
+    """runs/learner-ablation/code/: the repository at ``commit`` as committed (a later session
+    continues with the commit the first arms ran at, RUN.md)."""
     if (CODE / "COMMIT").exists():
         print(f"runs/learner-ablation/code holds {(CODE / 'COMMIT').read_text().strip()} already")
         return
     shutil.rmtree(CODE, ignore_errors=True)
     CODE.mkdir(parents=True)
-    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+    head = subprocess.run(["git", "rev-parse", commit], cwd=ROOT, capture_output=True, text=True,
                           check=True).stdout.strip()
     archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(CODE)], input=archive, check=True)
@@ -118,7 +119,20 @@ def collect(arms: list[str]) -> None:
                                          "success": ep["success"],
                                          "distance_m": ep["touchdown_distance_m"]}))
         (dst / "per_start.jsonl").write_text("\n".join(lines) + "\n")
+        gather_environments()
         print(dst.relative_to(ROOT), len(lines), "starts")
+
+
+def gather_environments() -> None:
+    """The arms' environment records, each once, in this folder's environment.jsonl (what every
+    committed results folder has), marked with their arm."""
+    records = []
+    for arm in ARMS:
+        path = HERE / arm / "environment.jsonl"
+        if path.exists():
+            records += [json.dumps({"arm": arm, **json.loads(line)}, sort_keys=True)
+                        for line in path.read_text().splitlines() if line.strip()]
+    (HERE / "environment.jsonl").write_text("\n".join(records) + "\n")
 
 
 def rates(arm: str) -> dict[tuple[str, int, int], float]:
@@ -177,11 +191,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("step", choices=("configs", "code", "run", "collect", "analyse"))
     parser.add_argument("arms", nargs="*", help=f"some of {ARMS} (default: all)")
+    parser.add_argument("--commit", default="HEAD", help="code step: the commit to export")
     args = parser.parse_args()
     arms = args.arms or ARMS
     if unknown := [a for a in arms if a not in ARMS]:
         parser.error(f"unknown arms {unknown}; use some of {ARMS}")
-    {"configs": lambda: configs(), "code": lambda: code(), "run": lambda: run(arms), "collect": lambda: collect(arms),
+    {"configs": lambda: configs(), "code": lambda: code(args.commit), "run": lambda: run(arms), "collect": lambda: collect(arms),
      "analyse": lambda: analyse()}[args.step]()
 
 
