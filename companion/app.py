@@ -28,6 +28,7 @@ from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.ask import HelpAsker
+from companion.control.demo_noise import DemoNoise
 from companion.control.precland import PrecisionLander
 from companion.control.records import EpisodeRecord
 from companion.control.safety import Geofence, SetpointLimiter
@@ -407,6 +408,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             control=control,
             asker=HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz) if cfg.ask.enabled else None,
             landing=cfg.landing,
+            demo_noise=DemoNoise(cfg.learner.demo_noise_std, cfg.learner.seed) if cfg.learner.demo_noise_std > 0 else None,
             judge_radius_m=camera.success_radius_m if isinstance(camera, RenderedCamera) and simulator is None else None,
         )
         parts.lander = _lander_for(opts, link, camera)

@@ -167,6 +167,11 @@ class LearnerConfig(Section):
         1.0, gt=0, le=1000, description="weight of a take-over's first takeover_steps samples (instead of "
         "intervention_weight)"
     )
+    demo_noise_std: float = Field(
+        0.0, ge=0, le=1, description="DART: while the person demonstrates, the vehicle flies their sticks plus "
+        "Gaussian noise of this std (stick units), seeded by the learner's seed and the episode; the sample "
+        "keeps the person's command; 0 = none (the paper)"
+    )
     holdout_stop: bool = Field(
         False, description="hold out holdout_share of the samples (never trained on); between episodes "
         "(budgeted mode) train until their loss stops improving, at most between_episode_updates, and "

@@ -109,7 +109,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors",),
 )
 EPISODE_CORE = ("companion.control.outcome", "companion.control.setpoint_rows", "companion.control.arbiter",
-                "companion.control.records", "companion.control.lanes", "companion.control.step")
+                "companion.control.records", "companion.control.lanes", "companion.control.step",
+                "companion.control.demo_noise")
 """The episode core: one rule for how an episode ends and is scored, one setpoint arithmetic,
 the batched episode core on its vehicle port, one vehicle's step decision; the drivers (the session in
 companion.control.session, the env, the batched env, the batched evaluation) sit above it."""

@@ -32,6 +32,7 @@ from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Phase
 from companion.control.ask import AskEvent, HelpAsker
+from companion.control.demo_noise import DemoNoise
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
 from companion.control.gaps import (
@@ -99,6 +100,9 @@ class EpisodeParts:
     judge_radius_m: float | None = None
     """Without a simulator: judge success from the vehicle's reported position, within this of
     the pad (set with a rendered camera, whose pad is where the estimate puts it); None: unknown."""
+    demo_noise: DemoNoise | None = None
+    """Stick noise on the demonstration steps the vehicle flies (companion/control/demo_noise.py,
+    ``[companion.learner] demo_noise_std``); None: the person's sticks as they are."""
     lander: PrecisionLander | None = None
     """The autopilot's own precision landing flies each episode after its start, fed with
     LANDING_TARGET (companion/control/precland.py); None: the person or the policy flies."""
@@ -129,7 +133,7 @@ class EpisodeRunner:
         self.help = (HelpSession(parts.asker, parts.human, self.port, self.period_s, parts.on_ask_event)
                      if parts.asker is not None else None)
         """Asking for help (companion/control/help_session.py); None: the session never asks."""
-        self.step = StepPipeline(parts, self.period_s, self.help, self.touchdown)
+        self.step = StepPipeline(parts, self.period_s, self.help, self.touchdown, parts.demo_noise)
         """Each step's decision (companion/control/step.py)."""
 
     @property
@@ -158,7 +162,7 @@ class EpisodeRunner:
         wall0 = time.monotonic()
         self._fresh.reset()  # the first step needs only complete telemetry
         self.gaps.begin()
-        self.step.reset()
+        self.step.reset(episode)
         self._begin_asking(episode)
         try:
             first, notes = self.starter.start(seed)

@@ -1,8 +1,9 @@
 """One control step's decision on one vehicle, the pipeline every step of the session flies.
 
 observation -> the person (or, when asking for help, only when asked) and the policy -> the
-arbiter (asking's hold and landing inside it) -> mapper -> limiter -> touchdown assist -> the
-setpoint to send, plus the sample to record. The touchdown assist comes after the limiter on
+arbiter (asking's hold and landing inside it) -> [demonstration noise, when on] -> mapper ->
+limiter -> touchdown assist -> the setpoint to send, plus the sample to record (always the
+person's own command). The touchdown assist comes after the limiter on
 purpose: a land detector needs a descent the limiter's rate limit would spread over seconds; it
 only ever asks for a descent within the commands' limits (companion/control/touchdown.py,
 tests/control/test_touchdown.py).
@@ -23,6 +24,7 @@ import numpy as np
 from companion.commands import CommandMapper, JoystickCommand
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction
+from companion.control.demo_noise import DemoNoise
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD
 from companion.control.safety import SetpointLimiter
@@ -95,13 +97,19 @@ class StepChoice:
 class StepPipeline:
     """The step decision on one vehicle, episode by episode (module docstring)."""
 
-    def __init__(self, parts: StepParts, period_s: float, help: HelpSession | None, touchdown: VehicleTouchdown) -> None:
+    def __init__(self, parts: StepParts, period_s: float, help: HelpSession | None, touchdown: VehicleTouchdown,
+                 noise: DemoNoise | None = None) -> None:
         self.p, self.period_s, self.help, self.touchdown = parts, period_s, help, touchdown
+        self.noise = noise
+        """Stick noise on the demonstration steps the vehicle flies (control/demo_noise.py); None: none."""
         self.arbiter = Arbiter()
         self._warned_learner = False
 
-    def reset(self) -> None:
-        """A new episode: the arbiter's count, the person's input, the limiter and the assist afresh."""
+    def reset(self, episode: int = 0) -> None:
+        """A new episode: the arbiter's count, the person's input, the limiter, the assist and the
+        demonstration noise's stream afresh."""
+        if self.noise is not None:
+            self.noise.begin(episode)
         self.arbiter.reset()
         self.p.human.reset()
         self.p.limiter.reset()
@@ -114,8 +122,15 @@ class StepPipeline:
         policy_cmd, version, score = self.policy_command(vector)
         action = help.action(phase, step, score, human) if help is not None else AskAction.POLICY
         decision = self.arbiter.decide(phase, human, policy_cmd, recordable=not obs.frame_missing, asked=action)
-        setpoint = None if decision.source in ("hold", "land") else self.setpoint(decision.command, snap)
+        setpoint = None if decision.source in ("hold", "land") else self.setpoint(self.flown(decision), snap)
         return StepChoice(human, decision, action, version, score, setpoint)
+
+    def flown(self, decision: Decision) -> JoystickCommand:
+        """What the vehicle flies: the decision's command, with the noise on a demonstration step
+        (the sample keeps the person's own command)."""
+        if self.noise is not None and decision.tag == "demonstration":
+            return self.noise.flown(decision.command)
+        return decision.command
 
     def policy_command(self, obs_vector: np.ndarray) -> tuple[JoystickCommand, int | None, float]:
         """The policy's command, its version and its disagreement (NaN: a single network)."""
