@@ -38,6 +38,7 @@ SWITCHES: dict[str, dict[str, object]] = {
     "mirror": {"mirror_augment": True},
     "holdout": {"holdout_stop": True},
     "weighting": {"intervention_weight": 2.0, "takeover_steps": 10, "takeover_weight": 4.0},
+    "dart": {"demo_noise_std": 0.2},  # added in PLAN.md's amendment 1, before any dart run
 }
 """Each switch's settings, fixed in PLAN.md before the runs (the rest at their defaults)."""
 EXPERIMENT = {"conditions": '["col"]', "interactions": "[8, 20]", "seeds": "[0, 1]",
