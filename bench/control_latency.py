@@ -47,10 +47,10 @@ from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
 from companion.learning.policy import PolicyNet, PolicySnapshot
 from companion.link.mavlink_link import MavlinkLink
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.observation import Observation
+from companion.msg.setpoint import VelocitySetpoint
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.camera import open_camera
-from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 

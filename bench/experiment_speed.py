@@ -59,8 +59,9 @@ from companion.config import CompanionConfig, LearnerConfig  # noqa: E402
 from companion.experiment.batched_eval import evaluate_batched  # noqa: E402
 from companion.experiment.grid import ExperimentSetup, TrainingRun, load_experiment, plan  # noqa: E402
 from companion.experiment.runner import evaluate_checkpoint, train_run, trial_config  # noqa: E402
-from companion.learning.dataset import HumanDataset, Sample, Source  # noqa: E402
+from companion.learning.dataset import HumanDataset  # noqa: E402
 from companion.learning.learner import Learner  # noqa: E402
+from companion.msg.sample import Sample, Source  # noqa: E402
 
 PAPER = REPO / "configs" / "paper.toml"
 GOAL_EVAL_EPISODES_PER_CORE_S = 5

@@ -35,11 +35,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from machine_ref import machine_ref_rt  # noqa: E402
 
 from companion.config import LearnerConfig  # noqa: E402
-from companion.learning.dataset import HumanDataset, Sample, Source  # noqa: E402
+from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner  # noqa: E402
 from companion.learning.learner_process import LearnerProcess  # noqa: E402
 from companion.learning.policy import PolicySnapshot  # noqa: E402
 from companion.learning.runners import LearnerThread  # noqa: E402
+from companion.msg.sample import Sample, Source
 
 RATE_HZ = 10.5
 

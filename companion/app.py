@@ -30,7 +30,6 @@ from companion.control.arbiter import Phase
 from companion.control.ask import HelpAsker
 from companion.control.demo_noise import DemoNoise
 from companion.control.precland import PrecisionLander
-from companion.control.records import EpisodeRecord
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
@@ -47,11 +46,12 @@ from companion.link.base import VehicleLink
 from companion.link.connection import parse_connection
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.signing import read_key
+from companion.msg.episode import EpisodeRecord
+from companion.msg.observation import Observation
 from companion.run_folder import prepare_run_dir, removed_if_unused
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.aruco import ArucoPadDetector
 from companion.vision.camera import CameraSource, open_camera
-from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 from companion.vision.rendered import RENDER_SCHEME, RenderedCamera

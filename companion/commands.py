@@ -1,8 +1,8 @@
 """Joystick commands and their mapping to body-frame velocity setpoints.
 
-A :class:`JoystickCommand` is what people and policies produce and what the dataset records
+A :class:`~companion.msg.command.JoystickCommand` is what people and policies produce and what the dataset records
 (order roll, pitch, yaw, throttle, each in [-1, 1]). :class:`CommandMapper` turns it into a
-:class:`~companion.link.setpoints.VelocitySetpoint` in small steps ending in a clip:
+:class:`~companion.msg.setpoint.VelocitySetpoint` in small steps ending in a clip:
 deadband -> expo -> scale -> clip. Inputs from misbehaving sources go through
 :func:`sanitize` first, so nothing non-finite or out of range ever reaches the vehicle.
 """
@@ -10,64 +10,16 @@ deadband -> expo -> scale -> clip. Inputs from misbehaving sources go through
 from __future__ import annotations
 
 import logging
-import math
-import numbers
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from companion.config import CommandsConfig
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.command import JoystickCommand, four_values
+from companion.msg.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
-
-AXES = ("roll", "pitch", "yaw", "throttle")
-"""The order of a command as an array: the policy's output and the dataset's action columns."""
-
-
-@dataclass(frozen=True)
-class JoystickCommand:
-    """Stick positions in [-1, 1]: roll +1 = move right, pitch +1 = forward,
-    yaw +1 = turn clockwise, throttle +1 = climb."""
-
-    roll: float
-    pitch: float
-    yaw: float
-    throttle: float
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if not _is_real(value):
-                raise TypeError(f"JoystickCommand.{f.name} must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"JoystickCommand.{f.name} is {value}; "
-                    "pass untrusted values through commands.sanitize()"
-                )
-            if not -1.0 <= value <= 1.0:
-                raise ValueError(
-                    f"JoystickCommand.{f.name} must be in [-1, 1], got {value!r}; "
-                    "pass untrusted values through commands.sanitize()"
-                )
-            object.__setattr__(self, f.name, float(value))
-
-    @classmethod
-    def neutral(cls) -> JoystickCommand:
-        """Sticks centred: hover in place (throttle 0 = hold altitude)."""
-        return cls(0.0, 0.0, 0.0, 0.0)
-
-    @classmethod
-    def from_array(cls, values: Sequence[float] | np.ndarray) -> JoystickCommand:
-        """Strict construction from four values in :data:`AXES` order (raises on bad values)."""
-        arr = _as_four(values)
-        return cls(*(float(v) for v in arr))
-
-    def to_array(self) -> np.ndarray:
-        """The four values in :data:`AXES` order as float64."""
-        return np.array([self.roll, self.pitch, self.yaw, self.throttle], dtype=np.float64)
-
 
 @dataclass(frozen=True)
 class SanitizeIssues:
@@ -81,20 +33,6 @@ class SanitizeIssues:
         return self.non_finite > 0 or self.clamped > 0
 
 
-def _is_real(value: object) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
-def _as_four(values: Sequence[float] | np.ndarray) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    if arr.shape != (4,):
-        raise ValueError(
-            f"a joystick command has 4 values ({', '.join(AXES)}), got {arr.size}; "
-            "check the policy's output size"
-        )
-    return arr
-
-
 def sanitize(values: Sequence[float] | np.ndarray) -> tuple[JoystickCommand, SanitizeIssues]:
     """Repair untrusted stick values: non-finite -> 0 (neutral), out of range -> clamped.
 
@@ -102,7 +40,7 @@ def sanitize(values: Sequence[float] | np.ndarray) -> tuple[JoystickCommand, San
     so that callers can count and log it. A wrong number of values is a programming error
     and raises ValueError.
     """
-    arr = _as_four(values)
+    arr = four_values(values)
     finite = np.isfinite(arr)
     arr = np.where(finite, arr, 0.0)
     clipped = np.clip(arr, -1.0, 1.0)

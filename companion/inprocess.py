@@ -42,11 +42,11 @@ from colcommon.frames import Frame, decode_frame, encode_frame
 from companion.app import RunOptions, Vehicle
 from companion.config import CompanionConfig, LinkConfig
 from companion.errors import ConfigError, SimulatorError
-from companion.link.base import VehicleSnapshot
 from companion.link.connection import parse_connection
 from companion.link.mavlink_io import MavlinkIO, SnapshotTest
 from companion.link.mavlink_link import MavlinkLink
 from companion.link.wire_copy import wire_copy
+from companion.msg.snapshot import VehicleSnapshot
 from companion.shared_facts import check_shared_facts
 from companion.simulator import SimulatorClient
 from sitl.config import SitlConfig, load_sitl_config

@@ -17,10 +17,10 @@ from companion.app import (
     run_episodes,
 )
 from companion.config import CompanionConfig
-from companion.control.records import EpisodeRecord
 from companion.errors import CameraError, CheckpointError, ConfigError
 from companion.learning.dataset import load_csv
 from companion.link.dialect import ARDUPILOT, PX4
+from companion.msg.episode import EpisodeRecord
 from companion.simulator import SitlProcess
 from companion.vision.camera import open_camera
 

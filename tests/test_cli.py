@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 
 from companion import cli
 from companion.app import RunOptions, RunResult
-from companion.control.records import EpisodeRecord
 from companion.learning.dataset import load_csv
+from companion.msg.episode import EpisodeRecord
 from tests.conftest import wait_until
 
 

@@ -8,17 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.commands import (
-    AXES,
-    CommandMapper,
-    JoystickCommand,
-    clip,
-    deadband,
-    expo,
-    sanitize,
-    scale,
-)
+from companion.commands import CommandMapper, clip, deadband, expo, sanitize, scale
 from companion.config import CommandsConfig
+from companion.msg.command import AXES, JoystickCommand
 
 CFG = CommandsConfig(
     v_xy_max_m_s=2.0, v_z_max_m_s=1.0, yaw_rate_max_rad_s=0.8, deadband=0.1, expo=0.3

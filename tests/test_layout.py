@@ -105,6 +105,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("inputs", "learning"),
     ("commands", "vision"),
     ("link", "shared_facts"),
+    ("msg",),
     ("config", "run_folder", "simulator", "statistics"),
     ("errors",),
 )

@@ -32,12 +32,13 @@ from companion.console.frames import FramePump
 from companion.console.study import ConsoleStudy
 from companion.control.arbiter import Phase
 from companion.control.gaps import Gap
-from companion.control.records import EpisodeRecord, StepView
+from companion.control.records import StepView
 from companion.errors import ColError, ConfigError
 from companion.experiment.study import Block
 from companion.inputs.browser import BrowserInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
+from companion.msg.episode import EpisodeRecord
 from companion.pictures.recorder import FlightRecorder
 
 log = logging.getLogger(__name__)

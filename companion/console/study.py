@@ -15,11 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from companion.config import CompanionConfig
-from companion.control.records import EpisodeRecord
 from companion.errors import ConfigError
 from companion.experiment.grid import ExperimentSetup
 from companion.experiment.runner import evaluate_checkpoint, trial_config, trial_result
 from companion.experiment.study import Block, StudyFolder, check_answers
+from companion.msg.episode import EpisodeRecord
 
 log = logging.getLogger(__name__)
 PRACTICE_START_SEED = 900_000

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Literal
 
-from companion.commands import JoystickCommand
 from companion.control.ask import AskAction
 from companion.inputs.base import HumanCommand
+from companion.msg.command import JoystickCommand
 
 Source = Literal["human", "policy", "hold", "land"]
 ASKED: dict[AskAction, Source] = {AskAction.HOLD: "hold", AskAction.LAND: "land"}

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.commands import JoystickCommand
+from companion.msg.command import JoystickCommand
 
 
 class DemoNoise:

@@ -22,9 +22,9 @@ from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander
 from companion.control.sequences import arm_when_ready, streaming, take_off, when_ready
 from companion.errors import ColError, CommandRejected, LinkError
-from companion.link.base import VehicleSnapshot
 from companion.link.dialect import Dialect
 from companion.link.truth import ask_for_truth
+from companion.msg.snapshot import VehicleSnapshot
 from companion.simulator import SimulatorClient
 
 log = logging.getLogger(__name__)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from companion.link.base import VehicleSnapshot
+from companion.msg.snapshot import VehicleSnapshot
 
 
 @dataclass(frozen=True)

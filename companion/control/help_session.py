@@ -23,7 +23,7 @@ from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import EnsembleSnapshot
 from companion.learning.snapshot import PolicySnapshot
-from companion.link.base import VehicleSnapshot
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 

@@ -41,9 +41,9 @@ from companion.control import outcome as outcome_rule
 from companion.control.safety import Geofence
 from companion.control.setpoint_rows import SetpointRows
 from companion.errors import LinkError
-from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
-from companion.vision.observation import OBS_DIM, normalised
+from companion.msg.observation import OBS_DIM, normalised
+from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.observation_rows import detect_pad, pad_rows, telemetry_row
 from companion.vision.perception import PadDetector
 

@@ -16,10 +16,11 @@ import time
 from collections.abc import Callable
 
 from companion.errors import ColError, LinkError, LinkLost
-from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 HOLD = VelocitySetpoint(0.0, 0.0, 0.0, 0.0)

@@ -25,8 +25,8 @@ from typing import Any
 
 from companion.control.safety import FenceStatus, Geofence
 from companion.control.touchdown import Evidence, TouchdownAssist, touchdown_evidence
-from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
+from companion.msg.snapshot import VehicleSnapshot
 
 TOUCHDOWN = "touchdown"
 FENCE = "fence"

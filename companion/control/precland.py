@@ -23,9 +23,10 @@ from dataclasses import dataclass
 from colcommon.frames import Frame
 from companion.control.link_port import HOLD, LinkPort
 from companion.errors import CommandRejected, LinkTimeout
-from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect
 from companion.link.landing_target import LandingTarget, landing_target
+from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.aruco import ArucoPadDetector
 from companion.vision.camera import CameraSource, SitlCameraSource
 

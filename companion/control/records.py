@@ -7,14 +7,17 @@ wall time); a console, a video and the reports read them.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import TypeVar
 
 from companion.control.arbiter import Decision, InterventionSummary, Phase
 from companion.control.ask import AskSummary
 from companion.control.outcome import Score
-from companion.link.setpoints import VelocitySetpoint
-from companion.vision.observation import Observation
+from companion.msg.episode import EpisodeRecord
+from companion.msg.observation import Observation
+from companion.msg.setpoint import VelocitySetpoint
+
+R = TypeVar("R", bound=EpisodeRecord)
 
 
 @dataclass(frozen=True)
@@ -44,66 +47,25 @@ def supervised_steps(phase: Phase, steps: int, engaged_steps: int | None) -> int
     return steps if engaged_steps is None else engaged_steps
 
 
-@dataclass(frozen=True)
-class EpisodeRecord:
-    """One JSON line per episode (runs/<run>/episodes.jsonl)."""
-
-    episode: int
-    phase: str
-    seed: int | None
-    steps: int
-    human_samples: int
-    interventions: int
-    intervention_s: float
-    intervention_durations_s: tuple[float, ...]
-    outcome: str  # touchdown | timeout | fence | link_lost | error | stopped (by the operator)
-    success: bool | None
-    touchdown_distance_m: float | None
-    touchdown_speed_m_s: float | None
-    policy_version: int | None
-    dataset_size: int
-    sim_time_s: float
-    wall_time_s: float
-    notes: tuple[str, ...] = field(default_factory=tuple)
-    loss_all: float | None = None
-    """After the episode (and the learner's between-episode updates): the policy's MSE on
-    every human sample, and on the intervention samples alone (None: none recorded)."""
-    loss_intervention: float | None = None
-    requests: int = 0
-    """Requests for help in this episode (``[companion.ask]``), and how many went unanswered."""
-    requests_unanswered: int = 0
-    supervised_steps: int = 0
-    """Steps the person had to watch: every step of a demonstration, and of an intervention
-    episode flown by a person who watches throughout; for a person who watches only when
-    asked, the steps from each request until they handed back."""
-    ask_threshold: float | None = None
-    """The disagreement threshold of this episode (None: not asking)."""
-    true_touchdown_distance_m: float | None = None
-    """Without a simulator: the touchdown's true distance from the pad where the autopilot's SITL
-    sends its true position (companion/link/truth.py); the estimate's is touchdown_distance_m."""
-
-    @classmethod
-    def of_episode(cls, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str, result: Score, *,
+def episode_record(episode: int, phase: Phase, seed: int | None, steps: int, outcome: str, result: Score, *,
                    involvement: InterventionSummary, control_period_s: float, policy_version: int | None,
                    dataset_size: int, sim_time_s: float, wall_time_s: float, notes: list[str],
-                   ask: AskSummary | None, supervised_steps: int, ask_threshold: float | None) -> EpisodeRecord:
-        """The record of an ended episode, scored ``result`` (companion/control/outcome.py): the
-        person's involvement as the arbiter counted it, the requests for help (``ask`` None: not
-        asking; an ``ask_threshold`` that is not finite is none), times rounded to the millisecond."""
-        durations = involvement.durations_s(control_period_s)
-        return cls(
-            episode=episode, phase=phase.value, seed=seed, steps=steps,
-            human_samples=involvement.recorded_steps, interventions=involvement.interventions,
-            intervention_s=round(sum(durations), 3), intervention_durations_s=tuple(round(d, 3) for d in durations),
-            outcome=outcome, success=result.success,
-            touchdown_distance_m=result.distance_m, touchdown_speed_m_s=result.speed_m_s,
-            policy_version=policy_version, dataset_size=dataset_size,
-            sim_time_s=round(sim_time_s, 3), wall_time_s=round(wall_time_s, 3), notes=tuple(notes),
-            requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
-            supervised_steps=supervised_steps,
-            true_touchdown_distance_m=result.true_distance_m,
-            ask_threshold=None if ask_threshold is None or not math.isfinite(ask_threshold) else round(ask_threshold, 8),
-        )
-
-    def to_json_dict(self) -> dict[str, Any]:
-        return asdict(self)
+                   ask: AskSummary | None, supervised_steps: int, ask_threshold: float | None,
+                   record_type: type[R] = EpisodeRecord) -> R:  # type: ignore[assignment]
+    """The record (``record_type``: EpisodeRecord or a driver's own kind of it) of an ended episode, scored ``result`` (companion/control/outcome.py): the
+    person's involvement as the arbiter counted it, the requests for help (``ask`` None: not
+    asking; an ``ask_threshold`` that is not finite is none), times rounded to the millisecond."""
+    durations = involvement.durations_s(control_period_s)
+    return record_type(
+        episode=episode, phase=phase.value, seed=seed, steps=steps,
+        human_samples=involvement.recorded_steps, interventions=involvement.interventions,
+        intervention_s=round(sum(durations), 3), intervention_durations_s=tuple(round(d, 3) for d in durations),
+        outcome=outcome, success=result.success,
+        touchdown_distance_m=result.distance_m, touchdown_speed_m_s=result.speed_m_s,
+        policy_version=policy_version, dataset_size=dataset_size,
+        sim_time_s=round(sim_time_s, 3), wall_time_s=round(wall_time_s, 3), notes=tuple(notes),
+        requests=ask.requests if ask else 0, requests_unanswered=ask.unanswered if ask else 0,
+        supervised_steps=supervised_steps,
+        true_touchdown_distance_m=result.true_distance_m,
+        ask_threshold=None if ask_threshold is None or not math.isfinite(ask_threshold) else round(ask_threshold, 8),
+    )

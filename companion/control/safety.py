@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.config import CommandsConfig, SafetyConfig
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator
 from companion.errors import ColError, CommandRejected
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect, EndOfRun
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 
 log = logging.getLogger(__name__)
 ARM_RETRY_S = 1.0

@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Phase
@@ -45,7 +45,7 @@ from companion.control.gaps import (
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander, fly_precland
-from companion.control.records import EpisodeRecord, StepView, supervised_steps
+from companion.control.records import StepView, episode_record, supervised_steps
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
 from companion.control.step import PolicyRunner, StepPipeline
@@ -53,10 +53,13 @@ from companion.control.touchdown import VehicleTouchdown
 from companion.errors import ColError, LinkLost
 from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset
-from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect
 from companion.link.home import HomeFrame
 from companion.link.truth import true_distance_m
+from companion.msg.command import JoystickCommand
+from companion.msg.episode import EpisodeRecord
+from companion.msg.snapshot import VehicleSnapshot
 from companion.simulator import SimulatorClient
 from companion.vision.observer import Observer
 
@@ -342,7 +345,7 @@ class EpisodeRunner:
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
                 notes: list[str]) -> EpisodeRecord:
         result = self._score(outcome, snap, notes)
-        return EpisodeRecord.of_episode(
+        return episode_record(
             episode, phase, seed, steps, outcome, result, involvement=self.step.arbiter.summary(),
             control_period_s=self.period_s, policy_version=version,
             dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,

@@ -19,7 +19,7 @@ from companion.commands import CommandMapper, body_velocity
 from companion.config import CompanionConfig
 from companion.control.safety import SetpointLimiter
 from companion.link.base import SetpointLimits
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 
 
 def check_link_limits(limits: SetpointLimits, setpoints: np.ndarray) -> None:

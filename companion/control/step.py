@@ -21,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction
 from companion.control.demo_noise import DemoNoise
@@ -30,12 +30,13 @@ from companion.control.link_port import HOLD
 from companion.control.safety import SetpointLimiter
 from companion.control.touchdown import VehicleTouchdown
 from companion.inputs.base import HumanCommand, HumanInput
-from companion.learning.dataset import Sample, Source
 from companion.learning.ensemble import disagreement
 from companion.learning.snapshot import PolicySnapshot
-from companion.link.base import VehicleSnapshot
-from companion.link.setpoints import VelocitySetpoint
-from companion.vision.observation import Observation
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.sample import Sample, Source
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 

@@ -28,9 +28,10 @@ from dataclasses import dataclass
 
 from companion.config import LandingConfig
 from companion.errors import ColError
-from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.base import VehicleLink
 from companion.link.home import HomeFrame
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 PX4_CONTACT_FACTOR = 1.1  # PX4: ground contact needs the commanded descent >= 1.1 x LNDMC_Z_VEL_MAX

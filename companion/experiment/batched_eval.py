@@ -45,7 +45,7 @@ from companion.config import CompanionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Arbiter, Phase
 from companion.control.lanes import EpisodeLanes
-from companion.control.records import EpisodeRecord
+from companion.control.records import episode_record
 from companion.errors import ColError, SessionOnly
 from companion.inprocess import sitl_config_for
 from companion.learning.checkpoint import load_checkpoint
@@ -53,6 +53,7 @@ from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import disagreement
 from companion.learning.learner import Learner
 from companion.learning.snapshot import PolicySnapshot
+from companion.msg.episode import EpisodeRecord
 from companion.rl.landing_lane import open_lanes
 from companion.rl.landing_task import DESCENT_THROTTLE
 from sitl.config import SitlConfig, load_sitl_config
@@ -213,11 +214,9 @@ class BatchedEvaluator:
         """``EpisodeRunner._record`` with a simulator, for an autonomous episode: the one rule.
         A fence exit's hold answered its frame: a step, as the session counts it (no policy)."""
         fence = outcome == outcome_rule.FENCE
-        record = EvalEpisode.of_episode(
+        return episode_record(
             flight.episode, Phase.AUTONOMOUS, flight.seed, self.core.steps[i] + fence, outcome,
             self.core.score(i, outcome), involvement=Arbiter().summary(), control_period_s=self.period_s,
             policy_version=None if fence else flight.version, dataset_size=0,
             sim_time_s=(self.core.snap(i).time_boot_ms - flight.t0_ms) / 1000.0, wall_time_s=math.nan, notes=[],
-            ask=None, supervised_steps=0, ask_threshold=None)
-        assert isinstance(record, EvalEpisode)
-        return record
+            ask=None, supervised_steps=0, ask_threshold=None, record_type=EvalEpisode)

@@ -42,8 +42,8 @@ from companion.experiment.tasks import CONFIG_COPY, RunFn, init_worker, run_trai
 
 if TYPE_CHECKING:
     from companion.app import RunResult
-    from companion.control.records import EpisodeRecord
     from companion.experiment.batched_eval import BatchedEvaluation
+    from companion.msg.episode import EpisodeRecord
 
 log = logging.getLogger(__name__)
 

@@ -11,10 +11,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from companion.commands import JoystickCommand
+from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 
 @dataclass(frozen=True)

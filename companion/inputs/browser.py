@@ -30,12 +30,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from companion.commands import JoystickCommand, sanitize
+from companion.commands import sanitize
 from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand, HumanInput
+from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 log = logging.getLogger(__name__)
 

@@ -15,13 +15,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.commands import JoystickCommand
 from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.pad_view import PadEstimate, estimate_pad, heading_velocity
+from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 
 def view_of(obs: Observation, cfg: PilotConfig) -> PadEstimate | None:

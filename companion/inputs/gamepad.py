@@ -18,7 +18,7 @@ from companion.errors import InputDeviceError
 from companion.inputs.base import HumanCommand, HumanInput
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 
 class JoystickDevice(Protocol):

@@ -19,12 +19,12 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from companion.commands import JoystickCommand
 from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand, HumanInput
+from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 log = logging.getLogger(__name__)
 

@@ -48,15 +48,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.commands import JoystickCommand
 from companion.config import PilotConfig
 from companion.errors import ConfigError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
 from companion.inputs.synthetic import PilotProfile
+from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 POPULATION_SEED = 2026
 """The default population: participants H01, H02, ... are drawn from it."""

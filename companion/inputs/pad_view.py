@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from companion.vision.perception import PadDetection
+    from companion.msg.pad import PadDetection
 
 
 @dataclass(frozen=True)

@@ -32,14 +32,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.commands import JoystickCommand
 from companion.config import PilotConfig
 from companion.errors import ConfigError
 from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
+from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
 
 MAX_DELAY_STEPS = 20
 PATIENCE_RANGE = (0.25, 4.0)

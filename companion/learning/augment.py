@@ -9,7 +9,7 @@ state would have flown its mirror image with the mirrored sticks. So the mirrore
 good a label as the recorded one, on a state the person never showed.
 
 The mirror is the reflection ``east -> -east`` of the world. What changes sign, in the
-observation (``companion/vision/observation.py``, :data:`OBS_NAMES`): the east position and
+observation (``companion/msg/observation.py``, :data:`OBS_NAMES`): the east position and
 velocity, roll and roll rate ``p`` (the body's right goes to its left), yaw and yaw rate ``r``
 (clockwise becomes anticlockwise) and the pad's image column ``pad_u`` (the image is mirrored
 about its centre column, ``cx = (width - 1) / 2``); in the action (``roll, pitch, yaw,
@@ -29,8 +29,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.errors import ConfigError
-from companion.learning.snapshot import ACTION_NAMES
-from companion.vision.observation import OBS_NAMES
+from companion.msg.command import ACTION_NAMES
+from companion.msg.observation import OBS_NAMES
 
 MIRRORED_OBS: frozenset[str] = frozenset(
     {"east_m", "roll_rad", "yaw_rad", "ve_m_s", "p_rad_s", "r_rad_s", "pad_u"})

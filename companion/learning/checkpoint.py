@@ -30,8 +30,9 @@ import numpy as np
 from companion.config import LearnerConfig
 from companion.errors import CheckpointError
 from companion.learning.ensemble import EnsembleSnapshot
-from companion.learning.snapshot import ACTION_NAMES, Normalisation, PolicySnapshot
-from companion.vision.observation import OBS_DIM, OBS_NAMES
+from companion.learning.snapshot import Normalisation, PolicySnapshot
+from companion.msg.command import ACTION_NAMES
+from companion.msg.observation import OBS_DIM, OBS_NAMES
 
 if TYPE_CHECKING:  # reading and writing checkpoints needs no torch
     from companion.learning.policy import PolicyNet

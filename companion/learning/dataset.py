@@ -28,14 +28,14 @@ import threading
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 
 import numpy as np
 
 from companion.errors import DatasetCorrupt
-from companion.learning.snapshot import ACT_DIM, ACTION_NAMES
-from companion.vision.observation import OBS_NAMES
+from companion.msg.command import ACT_DIM, ACTION_NAMES
+from companion.msg.observation import OBS_NAMES
+from companion.msg.sample import Sample, Source
 
 log = logging.getLogger(__name__)
 
@@ -57,40 +57,6 @@ def discarded_episodes(csv_path: str | Path) -> set[int]:
         except (ValueError, KeyError, TypeError):
             log.warning("%s: line %d unreadable, skipped", audit, i)
     return out
-
-
-class Source(str, Enum):
-    """Who produced a sample: the person flew the whole episode, or took over from the agent."""
-
-    DEMONSTRATION = "demonstration"
-    INTERVENTION = "intervention"
-
-
-@dataclass(frozen=True)
-class Sample:
-    """One row: the observation the person saw and the joystick command they gave."""
-
-    episode: int
-    step: int
-    time_s: float
-    source: Source
-    obs: np.ndarray
-    action: np.ndarray
-
-    def __post_init__(self) -> None:
-        obs = np.array(self.obs, dtype=np.float32).reshape(-1)
-        action = np.array(self.action, dtype=np.float32).reshape(-1)
-        if action.shape != (ACT_DIM,):
-            raise ValueError(f"an action has {ACT_DIM} values {ACTION_NAMES}, got {action.shape}")
-        if not (np.all(np.isfinite(obs)) and np.all(np.isfinite(action))):
-            raise ValueError("refusing a non-finite sample: it would poison training")
-        if np.any(np.abs(action) > 1.0):
-            raise ValueError(f"actions must lie in [-1, 1], got {action.tolist()}")
-        if self.episode < 0 or self.step < 0 or not np.isfinite(self.time_s):
-            raise ValueError("episode and step must be >= 0 and time_s finite")
-        object.__setattr__(self, "source", Source(self.source))
-        object.__setattr__(self, "obs", obs)
-        object.__setattr__(self, "action", action)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,8 @@ from companion.learning.checkpoint import (
     save_checkpoint,
     write_atomically,
 )
-from companion.learning.snapshot import ACTION_NAMES, PolicySnapshot
+from companion.learning.snapshot import PolicySnapshot
+from companion.msg.command import ACTION_NAMES
 
 if TYPE_CHECKING:
     import onnx

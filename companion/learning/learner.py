@@ -33,7 +33,7 @@ from companion.learning.snapshot import Normalisation, PolicySnapshot, random_sn
 from companion.learning.stopping import HoldoutSession, HoldoutSplit, StopResult
 from companion.learning.trainer import MlpTrainer, one_blas_thread
 from companion.learning.weighting import WeightCache, weighting_on
-from companion.vision.observation import OBS_DIM, OBS_NAMES
+from companion.msg.observation import OBS_DIM, OBS_NAMES
 
 log = logging.getLogger(__name__)
 

@@ -37,11 +37,13 @@ import numpy as np
 
 from companion.config import LearnerConfig
 from companion.errors import ColError, ConfigError, DatasetCorrupt
-from companion.learning.dataset import DatasetView, Source, csv_header
+from companion.learning.dataset import DatasetView, csv_header
 from companion.learning.learner import Learner, LearnerState
-from companion.learning.snapshot import ACT_DIM, Normalisation, PolicySnapshot
+from companion.learning.snapshot import Normalisation, PolicySnapshot
 from companion.learning.trainer import limit_torch_threads
-from companion.vision.observation import OBS_NAMES
+from companion.msg.command import ACT_DIM
+from companion.msg.observation import OBS_NAMES
+from companion.msg.sample import Source
 
 _HEADER = struct.Struct("!BI")  # frame kind, payload length
 _SNAPSHOT, _STATE, _FINAL, _ERROR = 1, 2, 3, 4

@@ -18,8 +18,9 @@ from typing import cast
 import torch
 from torch import nn
 
-from companion.learning.snapshot import ACT_DIM, ACTION_NAMES, Normalisation, PolicySnapshot
-from companion.vision.observation import OBS_DIM
+from companion.learning.snapshot import Normalisation, PolicySnapshot
+from companion.msg.command import ACT_DIM, ACTION_NAMES
+from companion.msg.observation import OBS_DIM
 
 __all__ = ["ACTION_NAMES", "ACT_DIM", "Normalisation", "PolicyNet", "PolicySnapshot"]
 

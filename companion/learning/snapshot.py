@@ -19,10 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.vision.observation import OBS_DIM
-
-ACTION_NAMES: tuple[str, ...] = ("roll", "pitch", "yaw", "throttle")
-ACT_DIM = len(ACTION_NAMES)
+from companion.msg.command import ACT_DIM
+from companion.msg.observation import OBS_DIM
 
 
 def _frozen_f32(a: np.ndarray | Sequence[float]) -> np.ndarray:

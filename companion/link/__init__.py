@@ -12,9 +12,10 @@ from typing import Literal
 from companion import install_hint
 from companion.config import LinkConfig
 from companion.errors import ConfigError
-from companion.link.base import LinkStats, SetpointLimits, VehicleLink, VehicleSnapshot
+from companion.link.base import LinkStats, SetpointLimits, VehicleLink
 from companion.link.manual_control import ManualControlMessage
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 LinkKind = Literal["pymavlink", "mavsdk"]
 

@@ -26,7 +26,7 @@ import statistics
 from collections import deque
 from collections.abc import Sequence
 
-from companion.link.base import Vec3, VehicleSnapshot
+from companion.msg.snapshot import Vec3, VehicleSnapshot
 
 GROUND_SAMPLES = 50  # the ground level is the median of this many positions while standing
 GROUND_DRIFT_M = 1.0  # PX4 SIH's ground level moved 0.3-0.6 m between landings; a roof is higher

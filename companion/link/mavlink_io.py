@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.config import LinkConfig
 from companion.errors import LinkLost
-from companion.link.base import LinkStats, ManualControlCallback, VehicleSnapshot
+from companion.link.base import LinkStats, ManualControlCallback
 from companion.link.connection import ConnectionSpec, open_mavlink
 from companion.link.manual_control import parse_manual_control
 from companion.link.signing import diagnose, enable_signing, load_key
@@ -32,6 +32,7 @@ from companion.link.telemetry import (
 )
 from companion.link.tlog import TlogWriter
 from companion.link.waiters import Waiters
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 

@@ -21,18 +21,13 @@ from pymavlink.dialects.v20 import common as mavlink
 import companion.link.px4_modes as px4_modes
 from companion.config import LinkConfig
 from companion.errors import CommandRejected, LinkError, LinkLost, LinkTimeout
-from companion.link.base import (
-    LinkStats,
-    ManualControlCallback,
-    SetpointLimits,
-    VehicleLink,
-    VehicleSnapshot,
-)
+from companion.link.base import LinkStats, ManualControlCallback, SetpointLimits, VehicleLink
 from companion.link.connection import parse_connection
 from companion.link.dialect import PX4, Dialect, dialect_for
 from companion.link.mavlink_io import MavlinkIO
-from companion.link.setpoints import VelocitySetpoint
 from companion.link.waiters import Waiter
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 if TYPE_CHECKING:
     from companion.link.landing_target import LandingTarget

@@ -14,9 +14,9 @@ from types import SimpleNamespace
 from typing import Any
 
 from companion.errors import CommandRejected, LinkLost, LinkTimeout
-from companion.link.base import VehicleSnapshot
 from companion.link.connection import parse_connection
 from companion.link.telemetry import HANDLERS, with_changes
+from companion.msg.snapshot import VehicleSnapshot
 
 DIRECT_TELEMETRY = ("LOCAL_POSITION_NED", "ATTITUDE")
 """What the MAVSDK link reads as raw MAVLink (MavlinkDirect) instead of through MAVSDK's

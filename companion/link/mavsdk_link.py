@@ -27,13 +27,7 @@ import companion.link.px4_modes as px4_modes
 from companion.config import LinkConfig
 from companion.errors import CommandRejected, ConfigError, LinkLost, LinkTimeout
 from companion.link.async_runner import AsyncRunner
-from companion.link.base import (
-    LinkStats,
-    ManualControlCallback,
-    SetpointLimits,
-    VehicleLink,
-    VehicleSnapshot,
-)
+from companion.link.base import LinkStats, ManualControlCallback, SetpointLimits, VehicleLink
 from companion.link.manual_control import manual_control_from_fields
 from companion.link.mavlink_link import message_id
 from companion.link.mavlink_link import result_name as mav_result_name
@@ -47,7 +41,8 @@ from companion.link.mavsdk_convert import (
     route_mavsdk_log,
     translate_result,
 )
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 MAV_CMD_REQUEST_MESSAGE = 512  # MAVLink common.xml

@@ -12,7 +12,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 import companion.link.px4_modes as px4_modes
-from companion.link.base import LANDED_STATES, VehicleSnapshot
+from companion.msg.snapshot import LANDED_STATES, VehicleSnapshot
 
 MAV_MODE_FLAG_SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 NOT_A_VEHICLE = {

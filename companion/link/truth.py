@@ -14,7 +14,8 @@ import logging
 import math
 
 from companion.errors import ColError
-from companion.link.base import VehicleLink, VehicleSnapshot
+from companion.link.base import VehicleLink
+from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 TRUTH_MESSAGE = {"PX4": "HIL_STATE_QUATERNION", "ARDUPILOTMEGA": "SIMSTATE"}

@@ -11,7 +11,7 @@ import numpy as np
 
 from companion.control.arbiter import Phase
 from companion.control.records import StepView
-from companion.vision.perception import PadDetection
+from companion.msg.pad import PadDetection
 
 
 @dataclass(frozen=True)

@@ -46,10 +46,10 @@ from colcommon.frames import Frame, decode_frame, encode_frame
 from companion.config import LinkConfig
 from companion.errors import ConfigError, LinkTimeout, SimulatorError
 from companion.inprocess import inprocess_config
-from companion.link.base import LANDED_STATES, VehicleSnapshot
 from companion.link.mavlink_link import default_rates_hz, interval_params
 from companion.link.telemetry import initial_snapshot, with_changes
 from companion.link.wire_copy import wire_copy
+from companion.msg.snapshot import LANDED_STATES, VehicleSnapshot
 from sitl.camera_feed import render_frame
 from sitl.clock import frame_steps
 from sitl.config import SitlConfig

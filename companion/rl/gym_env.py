@@ -40,7 +40,8 @@ from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import ColError, ConfigError
 from companion.inprocess import inprocess_vehicle
 from companion.link import open_link
-from companion.link.base import VehicleSnapshot
+from companion.msg.observation import OBS_DIM
+from companion.msg.snapshot import VehicleSnapshot
 from companion.rl.landing_task import (
     ACTION_AXES,
     DESCENT_THROTTLE,
@@ -51,7 +52,6 @@ from companion.rl.landing_task import (
     stick_values,
 )
 from companion.simulator import SimulatorClient
-from companion.vision.observation import OBS_DIM
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 

@@ -25,10 +25,10 @@ from companion.control.lanes import ACCEPTED, START_ATTEMPTS, start_with_retries
 from companion.control.safety import Geofence
 from companion.errors import CommandRejected, ConfigError, LinkError
 from companion.inprocess import one_opencv_thread
-from companion.link.base import VehicleSnapshot
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.home import HomeFrame
 from companion.link.mavlink_link import result_name
+from companion.msg.snapshot import VehicleSnapshot
 from companion.rl.direct_sitl import DirectSitl
 from sitl.config import SitlConfig
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from companion.control import outcome as outcome_rule
 from companion.errors import ConfigError
-from companion.vision.observation import OBS_DIM, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP
+from companion.msg.observation import OBS_DIM, PAD_CENTRE_CLIP, PAD_RADIUS_CLIP
 
 ACTION_AXES: tuple[str, ...] = ("pitch", "roll", "throttle", "yaw")
 """What the action's entries control, in order; an n-action env controls the first n."""

@@ -16,8 +16,9 @@ import time
 from collections.abc import Callable
 
 from companion.errors import CommandRejected
-from companion.link.base import LANDED_STATES, VehicleLink, VehicleSnapshot
-from companion.link.setpoints import VelocitySetpoint
+from companion.link.base import VehicleLink
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import LANDED_STATES, VehicleSnapshot
 
 
 class LinkContractViolation(AssertionError):

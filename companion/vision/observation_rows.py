@@ -1,10 +1,10 @@
 """Observation vectors for rows of vehicles at once (the batched env, the batched evaluation).
 
-The session builds one :class:`~companion.vision.observation.Observation` per step and takes its
+The session builds one :class:`~companion.msg.observation.Observation` per step and takes its
 vector; the drivers that fly many vehicles in one process build the same vectors here from each
 vehicle's snapshot and camera image, through the same element-by-element functions
-(:func:`~companion.vision.observation.pad_features`,
-:func:`~companion.vision.observation.normalised`), so a row is that vehicle's vector alone.
+(:func:`~companion.msg.observation.pad_features`,
+:func:`~companion.msg.observation.normalised`), so a row is that vehicle's vector alone.
 """
 
 from __future__ import annotations
@@ -14,9 +14,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion.link.base import VehicleSnapshot
-from companion.vision.observation import PAD_NOT_VISIBLE, pad_features, wrap_angle_rad
-from companion.vision.perception import PadDetection, PadDetector
+from companion.msg.observation import PAD_NOT_VISIBLE, pad_features, wrap_angle_rad
+from companion.msg.pad import PadDetection
+from companion.msg.snapshot import VehicleSnapshot
+from companion.vision.perception import PadDetector
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,7 @@ def telemetry_row(snap: VehicleSnapshot | None,
 
 def pad_rows(detections: Sequence[PadDetection | None], image_size_px: tuple[int, int]) -> np.ndarray:
     """The pad's three entries of the vector for each detection (None: not visible), ``(n, 3)``:
-    :func:`~companion.vision.observation.pad_features` on the stack of the visible ones."""
+    :func:`~companion.msg.observation.pad_features` on the stack of the visible ones."""
     pads = np.tile(np.array(PAD_NOT_VISIBLE), (len(detections), 1))
     seen = [(row, pad) for row, pad in enumerate(detections) if pad is not None]
     if seen:

@@ -13,10 +13,11 @@ import time
 from collections import deque
 
 from colcommon.frames import Frame
-from companion.link.base import VehicleSnapshot
+from companion.msg.observation import Observation
+from companion.msg.pad import PadDetection
+from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.camera import CameraSource
-from companion.vision.observation import Observation
-from companion.vision.perception import PadDetection, PadDetector
+from companion.vision.perception import PadDetector
 
 log = logging.getLogger(__name__)
 WARN_EVERY_S = 5.0

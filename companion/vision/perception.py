@@ -17,35 +17,19 @@ lie outside the image.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from companion.config import PerceptionConfig
+from companion.msg.pad import PadDetection
 
 _EDGE_HALF_PX = 0.5  # contour points are boundary pixel centres: the edge is half a pixel further
 _MIN_ARC_POINTS = 12
 _NOTCH_DEPTH_PX = 1.5  # deeper dents in the outline are not the rim
 _MAX_FIT_RADIUS_IMAGES = 4.0  # a fitted rim larger than this many image sizes is not the pad
 _DOT_AREA_RATIO = (0.005, 0.2)  # (dot / disc) area; the marking's is 0.04
-
-
-@dataclass(frozen=True)
-class PadDetection:
-    """The pad in the image: centre and radius in pixels; ``partial`` if it crosses the border."""
-
-    u_px: float
-    v_px: float
-    radius_px: float
-    partial: bool
-
-    def __post_init__(self) -> None:
-        if not all(math.isfinite(x) for x in (self.u_px, self.v_px, self.radius_px)):
-            raise ValueError(f"pad detection must be finite, got {self}")
-        if self.radius_px <= 0:
-            raise ValueError(f"pad radius must be positive, got {self.radius_px}")
 
 
 class PadDetector:

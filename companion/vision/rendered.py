@@ -28,8 +28,8 @@ from collections.abc import Callable
 import numpy as np
 
 from colcommon.frames import Frame
-from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
+from companion.msg.snapshot import VehicleSnapshot
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
 from sitl.world import World

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.commands import JoystickCommand
 from companion.config import CompanionConfig
 from companion.console.session import (
     STOPPED,
@@ -24,10 +23,12 @@ from companion.console.session import (
 from companion.control.arbiter import Decision, Phase
 from companion.control.records import StepView
 from companion.errors import ConfigError
-from companion.learning.dataset import HumanDataset, Sample, Source, load_csv
-from companion.link.setpoints import VelocitySetpoint
-from companion.vision.observation import Observation
-from companion.vision.perception import PadDetection
+from companion.learning.dataset import HumanDataset, load_csv
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.pad import PadDetection
+from companion.msg.sample import Sample, Source
+from companion.msg.setpoint import VelocitySetpoint
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ import aiohttp
 import pytest
 
 from companion.experiment.ray_backend import process_children
-from companion.vision.observation import OBS_NAMES
+from companion.msg.observation import OBS_NAMES
 from tests.console import start_console, stop
 from tests.console.test_console_hold import Page, pad_state
 

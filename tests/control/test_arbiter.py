@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from companion.commands import JoystickCommand
 from companion.control.arbiter import Arbiter, Decision, Phase
 from companion.control.ask import AskAction
 from companion.inputs.base import HumanCommand
+from companion.msg.command import JoystickCommand
 
 PERSON = JoystickCommand(roll=0.5, pitch=0.25, yaw=0.0, throttle=-0.5)
 POLICY = JoystickCommand(roll=-0.75, pitch=0.0, yaw=0.125, throttle=0.5)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from companion.app import RunOptions
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.config import AskConfig, CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.ask import AskAction, AskEvent, HelpAsker, threshold_for
@@ -26,7 +26,8 @@ from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import EnsembleSnapshot
 from companion.learning.policy import PolicyNet, PolicySnapshot
-from companion.vision.observation import Observation
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 

@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.commands import JoystickCommand
 from companion.control.arbiter import Phase
 from companion.control.demo_noise import DemoNoise
 from companion.control.safety import SetpointLimiter
-from companion.learning.dataset import Source
+from companion.msg.command import JoystickCommand
+from companion.msg.sample import Source
 from tests.control.test_step import CFG, DOWN, PERIOD_S, Sticks, observe, pipeline, snap
 
 

@@ -19,8 +19,8 @@ from companion.control import outcome
 from companion.control.lanes import EpisodeLanes, score_by_truth, start_with_retries
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.errors import LinkError
-from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
+from companion.msg.snapshot import VehicleSnapshot
 
 CFG = CompanionConfig()
 START = VehicleSnapshot(0.0, 1000, 1000, 1, "PX4", True, "OFFBOARD", "IN_AIR", (0.5, -0.5, -4.0), (0.1, 0.0, -0.2),

@@ -8,10 +8,10 @@ import pytest
 
 from companion.control.link_port import HOLD, LinkPort
 from companion.errors import CommandRejected, LinkError
-from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT, PX4
 from companion.link.home import HomeFrame
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 
 
 class Link:

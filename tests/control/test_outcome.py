@@ -36,9 +36,9 @@ from companion.experiment.runner import evaluate_checkpoint, trial_config
 from companion.learning.checkpoint import save_checkpoint
 from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
-from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 from companion.rl.batched_env import BatchedLandingEnv
 from companion.rl.gym_env import LandingEnv
 

@@ -23,7 +23,6 @@ from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import CommandRejected, LinkTimeout
 from companion.inputs.base import HumanCommand, HumanInput
-from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT, PX4
 from companion.link.landing_target import (
     MAV_FRAME_BODY_FRD,
@@ -32,10 +31,11 @@ from companion.link.landing_target import (
     landing_target,
 )
 from companion.link.mavlink_link import MavlinkLink
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.observation import Observation
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 from companion.testing.fake_vehicle import FakeVehicle
 from companion.vision.aruco import ArucoPadDetector
-from companion.vision.observation import Observation
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 from companion.vision.rendered import RenderedCamera
@@ -82,7 +82,7 @@ class OneFrameCamera:
 
 
 def snapshot(attitude: tuple[float, float, float] = (0.0, 0.0, 0.0), position=(0.0, 0.0, -4.0)):  # type: ignore[no-untyped-def]
-    from companion.link.base import VehicleSnapshot
+    from companion.msg.snapshot import VehicleSnapshot
 
     return VehicleSnapshot(0.0, 5000, 5000, 1, "PX4", True, "AUTO.PRECLAND", "IN_AIR", position,
                            (0.0, 0.0, 0.0), attitude, (0.0, 0.0, 0.0), 0.0, True, True)

@@ -8,7 +8,8 @@ import math
 from companion.control.arbiter import InterventionSummary, Phase
 from companion.control.ask import AskSummary
 from companion.control.outcome import Score
-from companion.control.records import EpisodeRecord, supervised_steps
+from companion.control.records import episode_record, supervised_steps
+from companion.msg.episode import EpisodeRecord
 
 INVOLVEMENT = InterventionSummary(steps=40, human_steps=9, recorded_steps=7, interventions=2, durations_steps=(3, 4))
 
@@ -18,7 +19,7 @@ def record(**changes: object) -> EpisodeRecord:
                                      dataset_size=120, sim_time_s=3.80951, wall_time_s=1.23456, notes=["a", "b"],
                                      ask=None, supervised_steps=40, ask_threshold=None)
     kwargs.update(changes)
-    return EpisodeRecord.of_episode(3, Phase.INTERVENTION, 7, 40, "touchdown", Score(True, 0.25, 0.4, 0.3),
+    return episode_record(3, Phase.INTERVENTION, 7, 40, "touchdown", Score(True, 0.25, 0.4, 0.3),
                                     **kwargs)  # type: ignore[arg-type]
 
 

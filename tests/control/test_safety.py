@@ -9,7 +9,7 @@ import pytest
 
 from companion.config import CommandsConfig, SafetyConfig
 from companion.control.safety import FenceStatus, Geofence, SetpointLimiter
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 
 FENCE = Geofence(radius_m=10.0, min_alt_m=-1.0, max_alt_m=20.0, centre_ne_m=(5.0, -5.0))
 

@@ -12,8 +12,8 @@ import pytest
 from companion.control.arbiter import Phase
 from companion.control.sequences import arm_when_ready, leave_safe, take_off, when_ready
 from companion.errors import CommandRejected, ConfigError, LinkError
-from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT, PX4, Dialect, Step, dialect_for
+from companion.msg.snapshot import VehicleSnapshot
 from tests.control.test_session import KinematicLink, ScriptedHuman, make_runner, policy_runner
 
 AUTOPILOT = {"PX4": "PX4", "ArduPilot": "ARDUPILOTMEGA"}

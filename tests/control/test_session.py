@@ -10,18 +10,21 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.session import EpisodeParts, EpisodeRunner
 from companion.errors import LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
-from companion.learning.dataset import HumanDataset, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.policy import PolicyNet
-from companion.link.base import VehicleLink, VehicleSnapshot
-from companion.link.setpoints import VelocitySetpoint
-from companion.vision.observation import Observation
+from companion.link.base import VehicleLink
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.sample import Source
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 

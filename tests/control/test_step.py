@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.config import CompanionConfig, LandingConfig
 from companion.control.arbiter import Phase
 from companion.control.link_port import HOLD
@@ -16,12 +16,13 @@ from companion.control.safety import SetpointLimiter
 from companion.control.step import PolicyRunner, StepPipeline
 from companion.control.touchdown import TouchdownAssist, TouchdownNeed, VehicleTouchdown
 from companion.inputs.base import HumanCommand, HumanInput
-from companion.learning.dataset import Source
 from companion.learning.policy import PolicyNet
 from companion.learning.snapshot import PolicySnapshot
-from companion.link.base import VehicleSnapshot
 from companion.link.home import HomeFrame
-from companion.vision.observation import Observation
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.sample import Source
+from companion.msg.snapshot import VehicleSnapshot
 
 CFG = CompanionConfig()
 PERIOD_S = 0.1

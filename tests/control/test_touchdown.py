@@ -17,10 +17,10 @@ from companion.control.touchdown import (
     touchdown_need,
 )
 from companion.errors import CommandRejected, LinkError
-from companion.link.base import VehicleSnapshot
 from companion.link.dialect import ARDUPILOT
 from companion.link.home import HomeFrame
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
+from companion.msg.snapshot import VehicleSnapshot
 from tests.control.test_sequences import DialectLink
 
 PERIOD_S = 1 / 10.5

@@ -30,7 +30,6 @@ import pytest
 from companion.app import RunResult
 from companion.commands import CommandMapper
 from companion.config import LearnerConfig
-from companion.control.records import EpisodeRecord
 from companion.errors import CheckpointError, LinkError, SessionOnly
 from companion.experiment import batched_eval
 from companion.experiment.batched_eval import (
@@ -49,6 +48,7 @@ from companion.experiment.runner import evaluate_checkpoint, trial_config
 from companion.learning.checkpoint import save_checkpoint
 from companion.learning.ensemble import EnsembleSnapshot
 from companion.learning.snapshot import Normalisation, PolicySnapshot
+from companion.msg.episode import EpisodeRecord
 from companion.rl.direct_sitl import DirectSitl
 from companion.rl.landing_lane import LandingLane
 from companion.simulator import SimulatorClient
@@ -57,7 +57,7 @@ PAPER = Path(__file__).resolve().parents[2] / "configs" / "paper.toml"  # [sitl.
 EVAL_RUNS = 8
 TOUCHDOWN_TOLERANCE_M = 1e-3
 RUN = TrainingRun("P1", "demo", 0, 2, (2,))
-PAD_U, PAD_V, PAD_RADIUS = 12, 13, 14  # observation entries (companion/vision/observation.py)
+PAD_U, PAD_V, PAD_RADIUS = 12, 13, 14  # observation entries (companion/msg/observation.py)
 ROLL, PITCH, YAW, THROTTLE = range(4)  # policy outputs (JoystickCommand order)
 GAIN, THROTTLE_BIAS = 0.2, -1.5  # steers weakly, descends fast: lands on the pad from half the starts
 

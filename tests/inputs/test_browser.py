@@ -8,10 +8,10 @@ import math
 
 import pytest
 
-from companion.commands import JoystickCommand
 from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand
 from companion.inputs.browser import BrowserInput, command_from_gamepad, pad_shape_error
+from companion.msg.command import JoystickCommand
 
 TRIGGER = [0.0] * 7 + [1.0]
 RELEASED = [0.0] * 8

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.config import CommandsConfig, PilotConfig
 from companion.control.arbiter import Arbiter, Phase
 from companion.errors import InputDeviceError
@@ -22,8 +22,9 @@ from companion.inputs.expert import (
 from companion.inputs.gamepad import GamepadInput, check_layout, read_device
 from companion.inputs.manual_control import ManualControlInput, button_held
 from companion.inputs.pad_view import estimate_pad, focal_length_px, heading_velocity
-from companion.vision.observation import Observation
-from companion.vision.perception import PadDetection
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.pad import PadDetection
 
 W_PX, H_PX = 320, 240
 F_PX = focal_length_px(W_PX, math.radians(90.0))

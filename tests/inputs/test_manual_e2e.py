@@ -22,8 +22,9 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
 from companion.app import RunOptions, run_episodes
-from companion.commands import CommandMapper, JoystickCommand
+from companion.commands import CommandMapper
 from companion.config import load_companion_config
+from companion.msg.command import JoystickCommand
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from tests.conftest import free_port, gap_steps
 from tests.mav_client import MavTestClient

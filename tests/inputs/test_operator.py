@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from companion.app import build_human
-from companion.commands import JoystickCommand
 from companion.config import CompanionConfig, PilotConfig
 from companion.errors import ConfigError
 from companion.experiment.grid import ExperimentConfig
@@ -26,8 +25,9 @@ from companion.inputs.operator import (
     operator_named,
     perceived,
 )
-from companion.vision.observation import Observation
-from companion.vision.perception import PadDetection
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.pad import PadDetection
 
 RATE_HZ = 10.5
 PERIOD_S = 1 / RATE_HZ

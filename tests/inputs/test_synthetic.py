@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from companion.app import build_human
-from companion.commands import JoystickCommand
 from companion.config import CompanionConfig, PilotConfig
 from companion.errors import ConfigError
 from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
@@ -22,8 +21,9 @@ from companion.inputs.synthetic import (
     profile_named,
     synthetic_pilot,
 )
-from companion.vision.observation import Observation
-from companion.vision.perception import PadDetection
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation
+from companion.msg.pad import PadDetection
 
 
 def obs_at(step: int, down_m: float = -8.0, vd_m_s: float = 0.0) -> Observation:

@@ -11,10 +11,11 @@ import pytest
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.augment import Mirror, mirror_signs
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
-from companion.vision.observation import OBS_NAMES, Observation
-from companion.vision.perception import PadDetection
+from companion.msg.observation import OBS_NAMES, Observation
+from companion.msg.pad import PadDetection
+from companion.msg.sample import Sample, Source
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
 from sitl.world import World

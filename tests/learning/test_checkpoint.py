@@ -19,7 +19,7 @@ from companion.config import LearnerConfig
 from companion.errors import CheckpointError
 from companion.learning.checkpoint import FORMAT_VERSION, load_checkpoint, save_checkpoint
 from companion.learning.policy import Normalisation, PolicyNet, PolicySnapshot
-from companion.vision.observation import OBS_NAMES
+from companion.msg.observation import OBS_NAMES
 
 
 def _snapshot(rng: np.random.Generator, obs_dim: int = 15) -> PolicySnapshot:

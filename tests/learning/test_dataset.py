@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from companion.errors import DatasetCorrupt
-from companion.learning.dataset import HumanDataset, Sample, Source, csv_header, load_csv
-from companion.vision.observation import OBS_NAMES
+from companion.learning.dataset import HumanDataset, csv_header, load_csv
+from companion.msg.observation import OBS_NAMES
+from companion.msg.sample import Sample, Source
 
 
 def _sample(i: int, episode: int = 0, source: Source = Source.DEMONSTRATION) -> Sample:
@@ -190,7 +191,8 @@ def test_wait_for_growth_wakes_on_append() -> None:
 WRITER = textwrap.dedent("""
     import sys
     import numpy as np
-    from companion.learning.dataset import HumanDataset, Sample, Source
+    from companion.learning.dataset import HumanDataset
+    from companion.msg.sample import Sample, Source
     ds = HumanDataset(sys.argv[1])
     i = 0
     while True:

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.learning.dataset import HumanDataset, Sample, Source, discarded_episodes, load_csv
+from companion.learning.dataset import HumanDataset, discarded_episodes, load_csv
+from companion.msg.sample import Sample, Source
 
 
 def _sample(i: int, episode: int, source: Source = Source.DEMONSTRATION) -> Sample:

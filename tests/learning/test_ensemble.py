@@ -10,11 +10,12 @@ import pytest
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import EnsembleSnapshot, EnsembleTrainer, disagreement
 from companion.learning.learner import Learner
 from companion.learning.policy import Normalisation
 from companion.learning.trainer import MlpTrainer
+from companion.msg.sample import Sample, Source
 
 MAPPING = np.random.default_rng(7).normal(0, 0.4, size=(4, 15)).astype(np.float32)
 

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.fit import fit_of
 from companion.learning.policy import Normalisation, PolicySnapshot
+from companion.msg.sample import Sample, Source
 
 
 def zero_policy() -> PolicySnapshot:

@@ -13,7 +13,7 @@ import pytest
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
-from companion.learning.dataset import DatasetView, HumanDataset, Sample, Source
+from companion.learning.dataset import DatasetView, HumanDataset
 from companion.learning.learner import Learner, LearnerState
 from companion.learning.policy import PolicySnapshot
 from companion.learning.runners import (
@@ -22,6 +22,7 @@ from companion.learning.runners import (
     LearnerThread,
     make_runner,
 )
+from companion.msg.sample import Sample, Source
 from tests.conftest import wait_until
 
 MAPPING = np.random.default_rng(99).normal(0, 0.4, size=(4, 15)).astype(np.float32)

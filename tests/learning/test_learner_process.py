@@ -13,10 +13,11 @@ import pytest
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError, DatasetCorrupt
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner, LearnerState
 from companion.learning.learner_process import CsvTail, LearnerProcess, LearnerProcessFailed
 from companion.learning.runners import make_runner
+from companion.msg.sample import Sample, Source
 from tests.conftest import wait_until
 
 MAPPING = np.random.default_rng(99).normal(0, 0.4, size=(4, 15)).astype(np.float32)

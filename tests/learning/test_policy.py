@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from companion.learning.policy import ACT_DIM, Normalisation, PolicyNet, PolicySnapshot
-from companion.vision.observation import OBS_DIM
+from companion.msg.observation import OBS_DIM
 
 
 def _net(seed: int = 0, **kw) -> PolicyNet:

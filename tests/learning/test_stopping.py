@@ -8,10 +8,11 @@ import pytest
 
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.learner import Learner
 from companion.learning.runners import BudgetedLearner
 from companion.learning.stopping import HoldoutSplit, PatienceRule, WeightAverage, holdout_loss
+from companion.msg.sample import Sample, Source
 
 MAPPING = np.random.default_rng(7).normal(0, 0.5, size=(4, 15)).astype(np.float32)
 FAST = {"learning_rate": 1e-3, "holdout_check_every_updates": 25, "holdout_patience_checks": 4}

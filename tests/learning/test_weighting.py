@@ -10,13 +10,14 @@ import pytest
 import torch
 
 from companion.config import LearnerConfig
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.ensemble import EnsembleSnapshot, EnsembleTrainer
 from companion.learning.learner import Learner
 from companion.learning.learner_process import CsvTail
 from companion.learning.policy import PolicyNet
 from companion.learning.trainer import MlpTrainer
 from companion.learning.weighting import sample_weights, takeover_positions, weighting_on
+from companion.msg.sample import Sample, Source
 
 DEM, INT = Source.DEMONSTRATION, Source.INTERVENTION
 # (episode, step, source): a demonstration episode, then an episode with three take-overs (the

@@ -20,7 +20,7 @@ from companion.errors import CommandRejected, ConfigError, LinkLost, LinkTimeout
 from companion.link import ManualControlMessage, VehicleSnapshot, open_link
 from companion.link.connection import parse_connection
 from companion.link.mavlink_link import MavlinkLink
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 from companion.testing import FakeVehicle
 from companion.testing.link_contract import run_link_contract
 from tests.conftest import wait_until as _until
@@ -483,8 +483,8 @@ def test_telemetry_folds_into_a_new_snapshot_and_marks_frames() -> None:
 def test_each_message_changes_exactly_the_fields_its_handler_names() -> None:
     import dataclasses
 
-    from companion.link.base import VehicleSnapshot
     from companion.link.telemetry import HANDLERS, apply_message, initial_snapshot
+    from companion.msg.snapshot import VehicleSnapshot
 
     enc = _encoder()
     beat = _decoded(enc.heartbeat_encode(2, 12, 0x81, px4_modes.custom_mode("OFFBOARD"), 4), enc)

@@ -12,7 +12,7 @@ from companion.config import LinkConfig
 from companion.errors import CommandRejected, ConfigError, LinkLost
 from companion.link import ManualControlMessage, open_link
 from companion.link.mavsdk_link import MavsdkLink, mavsdk_url
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 from companion.testing import FakeVehicle
 from companion.testing.link_contract import run_link_contract
 from tests.conftest import wait_until as _until

@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
+from companion.msg.pad import PadDetection
 from companion.pictures.flight_plot import _segments, plot_flight
 from companion.pictures.recorder import EpisodeTrack, HudFrame, TrackPoint
 from companion.pictures.video import draw_hud, write_episode_video
-from companion.vision.perception import PadDetection
 
 
 def track(whos: str, episode: int = 0) -> EpisodeTrack:

@@ -13,7 +13,7 @@ import pytest
 from companion.config import LinkConfig
 from companion.errors import ColError
 from companion.link.mavlink_link import MavlinkLink
-from companion.link.setpoints import VelocitySetpoint
+from companion.msg.setpoint import VelocitySetpoint
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.testing.lossy_proxy import LinkFaults, LossyProxy
 from tests.conftest import free_port, wait_until

@@ -17,16 +17,17 @@ import pytest
 from gymnasium.error import Error as GymnasiumError
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
-from companion.commands import CommandMapper, JoystickCommand, body_velocity
+from companion.commands import CommandMapper, body_velocity
 from companion.config import CommandsConfig, CompanionConfig, SafetyConfig, load_companion_config
 from companion.control.safety import SetpointLimiter
 from companion.errors import ColError, ConfigError
+from companion.msg.command import JoystickCommand
+from companion.msg.observation import Observation, normalised, pad_features, wrap_angle_rad
+from companion.msg.pad import PadDetection
 from companion.rl.batched_env import BatchedLandingEnv
 from companion.rl.gym_env import LandingEnv, stick_rows, stick_values
 from companion.rl.ppo import PpoSettings, run_ppo
 from companion.rl.vec_env import make_vec_env
-from companion.vision.observation import Observation, normalised, pad_features, wrap_angle_rad
-from companion.vision.perception import PadDetection
 
 PAPER = Path(__file__).resolve().parents[2] / "configs" / "paper.toml"  # [sitl.disturbance] level = 0.2
 Policy = Callable[[np.ndarray, int, np.random.Generator], np.ndarray]

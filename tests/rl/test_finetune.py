@@ -16,8 +16,9 @@ import torch
 from companion.config import LearnerConfig
 from companion.errors import ConfigError
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
-from companion.learning.dataset import HumanDataset, Sample, Source
+from companion.learning.dataset import HumanDataset
 from companion.learning.policy import Normalisation, PolicyNet
+from companion.msg.sample import Sample, Source
 from companion.rl.finetune import (
     ENV_FROM_POLICY,
     BehaviourCloning,

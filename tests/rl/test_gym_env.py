@@ -13,10 +13,10 @@ from gymnasium.utils.env_checker import check_env
 
 from companion.config import CompanionConfig
 from companion.errors import ColError, ConfigError
+from companion.msg.observation import OBS_DIM
 from companion.rl.gym_env import DESCENT_THROTTLE, LandingEnv, stick_values
-from companion.vision.observation import OBS_DIM
 
-# Indices in the observation vector (companion/vision/observation.py).
+# Indices in the observation vector (companion/msg/observation.py).
 DOWN, YAW, VD, YAW_RATE = 2, 5, 8, 11
 
 

@@ -322,7 +322,7 @@ def test_opencv_source_refuses_an_unreadable_file(tmp_path) -> None:
 
 def test_rendered_frame_over_the_wire_gives_the_observation() -> None:
     """The whole camera path: render, serve, receive, detect, build the observation vector."""
-    from companion.vision.observation import Observation
+    from companion.msg.observation import Observation
     from companion.vision.perception import PadDetector
     from sitl.camera import CameraRenderer
     from sitl.config import CameraConfig, WorldConfig

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.vision.observation import (
+from companion.msg.observation import (
     OBS_DIM,
     OBS_NAMES,
     OBS_SCALES,
@@ -17,7 +17,7 @@ from companion.vision.observation import (
     pad_visible,
     wrap_angle_rad,
 )
-from companion.vision.perception import PadDetection
+from companion.msg.pad import PadDetection
 
 
 def make(pad: PadDetection | None = None, **overrides) -> Observation:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from colcommon.frames import Frame
-from companion.link.base import VehicleSnapshot
-from companion.vision.observation import PAD_NOT_VISIBLE
+from companion.msg.observation import PAD_NOT_VISIBLE
+from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.observer import STALE_AFTER_TICKS, Observer
 from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer

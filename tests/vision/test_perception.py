@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from companion.config import PerceptionConfig
-from companion.vision.perception import PadDetection, PadDetector, fit_circle
+from companion.msg.pad import PadDetection
+from companion.vision.perception import PadDetector, fit_circle
 from sitl.camera import PAD_BGR, CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
 from sitl.world import World

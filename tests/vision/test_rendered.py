@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from companion.config import PerceptionConfig
-from companion.link.base import VehicleSnapshot
+from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.perception import PadDetector
 from companion.vision.rendered import RenderedCamera
 from sitl.camera import CameraRenderer

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from companion.vision.perception import PadDetection
+from companion.msg.pad import PadDetection
 
 OBS_NAMES: tuple[str, ...] = (
     "north_m", "east_m", "down_m",
