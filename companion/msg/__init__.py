@@ -10,7 +10,8 @@ from here and from nothing above it:
 - :mod:`~companion.msg.command`: the joystick command (people's and policies' sticks);
 - :mod:`~companion.msg.setpoint`: the velocity setpoint sent to the vehicle;
 - :mod:`~companion.msg.sample`: the person's sample the dataset records;
-- :mod:`~companion.msg.episode`: the episode record.
+- :mod:`~companion.msg.episode`: the episode record;
+- :mod:`~companion.msg.checks`: the finite-number check every numeric field passes.
 
 The camera frame, the one message the SITL shares with the companion, is ``colcommon.frames``
 (its wire format with it).

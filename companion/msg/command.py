@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import math
-import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
+
+from companion.msg.checks import finite_real
 
 AXES = ("roll", "pitch", "yaw", "throttle")
 """The order of a command as an array: the policy's output and the dataset's action columns."""
@@ -25,20 +25,14 @@ class JoystickCommand:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if not is_real_number(value):
-                raise TypeError(f"JoystickCommand.{f.name} must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"JoystickCommand.{f.name} is {value}; "
-                    "pass untrusted values through commands.sanitize()"
-                )
+            value = finite_real("JoystickCommand", f.name, getattr(self, f.name),
+                                "pass untrusted values through commands.sanitize()")
             if not -1.0 <= value <= 1.0:
                 raise ValueError(
                     f"JoystickCommand.{f.name} must be in [-1, 1], got {value!r}; "
                     "pass untrusted values through commands.sanitize()"
                 )
-            object.__setattr__(self, f.name, float(value))
+            object.__setattr__(self, f.name, value)
 
     @classmethod
     def neutral(cls) -> JoystickCommand:
@@ -54,10 +48,6 @@ class JoystickCommand:
     def to_array(self) -> np.ndarray:
         """The four values in :data:`AXES` order as float64."""
         return np.array([self.roll, self.pitch, self.yaw, self.throttle], dtype=np.float64)
-
-
-def is_real_number(value: object) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def four_values(values: Sequence[float] | np.ndarray) -> np.ndarray:

@@ -7,9 +7,9 @@ limits belong to the commands module (which clips) and to the link (which refuse
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass, fields
+
+from companion.msg.checks import finite_real
 
 
 @dataclass(frozen=True)
@@ -27,15 +27,10 @@ class VelocitySetpoint:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise TypeError(f"VelocitySetpoint.{f.name} must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"VelocitySetpoint.{f.name} is {value}; only finite values may be sent to "
-                    "the vehicle - drop or clamp the command before building a setpoint"
-                )
-            object.__setattr__(self, f.name, float(value))
+            value = finite_real("VelocitySetpoint", f.name, getattr(self, f.name),
+                                "only finite values may be sent to the vehicle - drop or clamp the command "
+                                "before building a setpoint")
+            object.__setattr__(self, f.name, value)
 
     @classmethod
     def zero(cls) -> VelocitySetpoint:
