@@ -5,6 +5,7 @@ are what the link, the vision, the control loop and the learner share; each part
 from here and from nothing above it:
 
 - :mod:`~companion.msg.snapshot`: the vehicle snapshot (the link's view of the vehicle);
+- :mod:`~companion.msg.true_pose`: a simulator's true pose beside the estimate (autopilot SITLs);
 - :mod:`~companion.msg.pad`: the pad as the detector found it in an image;
 - :mod:`~companion.msg.observation`: the 15-value observation and its one encoding;
 - :mod:`~companion.msg.command`: the joystick command (people's and policies' sticks);

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from companion.msg.true_pose import TruePose
+
 Vec3 = tuple[float, float, float]
 
 LANDED_STATES = ("UNDEFINED", "ON_GROUND", "IN_AIR", "TAKEOFF", "LANDING")
@@ -42,6 +44,11 @@ class VehicleSnapshot:
     HIL_STATE_QUATERNION; ArduPilot: SIMSTATE); never on a real vehicle."""
     origin_lat_lon_deg: tuple[float, float] | None = None
     """Where the local frame's origin is (GPS_GLOBAL_ORIGIN), to put the pad on the true map."""
+    origin_alt_m: float | None = None
+    """The local origin's altitude (GPS_GLOBAL_ORIGIN, metres AMSL): true heights are taken from it."""
+    true_pose: TruePose | None = None
+    """The simulator's true pose in the local frame (companion/link/truth.py), where the
+    autopilot's SITL sends one and the local origin is known; never on a real vehicle."""
     position_time_boot_ms: int | None = None
     """The vehicle's own stamp of the position and velocity held here (LOCAL_POSITION_NED's
     time_boot_ms; None until one arrives): what says whether a control step's observation is
