@@ -12,6 +12,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 import companion.link.px4_modes as px4_modes
+from companion.link.truth import POSE_FROM
 from companion.msg.snapshot import LANDED_STATES, VehicleSnapshot
 
 MAV_MODE_FLAG_SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
@@ -131,8 +132,25 @@ def _simstate(msg: Any, now_s: float) -> dict[str, Any]:
     return {"truth_lat_lon_deg": _lat_lon(int(msg.lat), int(msg.lng))}
 
 
+def _sim_state(msg: Any, now_s: float) -> dict[str, Any]:
+    return {"truth_lat_lon_deg": _lat_lon(int(msg.lat_int), int(msg.lon_int))}
+
+
 def _global_origin(msg: Any, now_s: float) -> dict[str, Any]:
-    return {"origin_lat_lon_deg": _lat_lon(int(msg.latitude), int(msg.longitude))}
+    origin = _lat_lon(int(msg.latitude), int(msg.longitude))
+    if origin is None:
+        return {"origin_lat_lon_deg": None}
+    return {"origin_lat_lon_deg": origin, "origin_alt_m": int(msg.altitude) / 1000.0}
+
+
+def _true_pose(kind: str, msg: Any, snapshot: VehicleSnapshot, now_s: float) -> dict[str, Any]:
+    """The simulator's true pose in the local frame (companion/link/truth.py); a message before
+    the origin is known leaves the last pose as it was."""
+    try:
+        pose = POSE_FROM[kind](msg, snapshot, now_s)
+    except (TypeError, ValueError) as exc:  # non-finite truth
+        raise InvalidTelemetry(f"{kind}: {exc}") from None
+    return {} if pose is None else {"true_pose": pose}
 
 
 def _system_time(msg: Any, now_s: float) -> dict[str, Any]:
@@ -158,6 +176,7 @@ HANDLERS = {
     "DISTANCE_SENSOR": _distance_sensor,
     "HIL_STATE_QUATERNION": _hil_state,
     "SIMSTATE": _simstate,
+    "SIM_STATE": _sim_state,
     "GPS_GLOBAL_ORIGIN": _global_origin,
 }
 
@@ -175,6 +194,8 @@ def apply_message(
         return snapshot
     handler = HANDLERS.get(kind)
     changes = handler(msg, now_s) if handler else {}
+    if kind in POSE_FROM:
+        changes.update(_true_pose(kind, msg, snapshot, now_s))
     if kind == frame_marker and hasattr(msg, "time_boot_ms"):
         changes["frame_time_boot_ms"] = int(msg.time_boot_ms)
     changes["received_s"] = now_s

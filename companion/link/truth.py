@@ -1,40 +1,52 @@
-"""The true position where an autopilot's SITL offers one, to check scores made from its estimate.
+"""The truth where an autopilot's SITL offers it: to check scores made from its estimate, and
+for the rendered camera to see what a real camera would (docs/camera.md).
 
 On a real vehicle the companion has only the autopilot's estimate; so on real autopilots the
-touchdown is scored from the reported position (what a field test would have). Their SITLs also
-know the truth: PX4 SIH streams HIL_STATE_QUATERNION from its ground truth, ArduPilot's SITL
-SIMSTATE. With GPS_GLOBAL_ORIGIN (where the local frame's origin is) the pad, given in the local
-frame, goes on the true map, and the true touchdown distance can be set beside the estimated
-one. Nothing here is needed to fly; a vehicle that offers none of it just has no truth.
+touchdown is scored from the reported position (what a field test would have), and the true
+distance is set beside it where the SITL knows the truth. With GPS_GLOBAL_ORIGIN (where the local
+frame's origin is, and its altitude) the truth goes into the local frame, where the pad is given:
+
+- PX4 SIH: HIL_STATE_QUATERNION, from SIH's ground truth: latitude, longitude, altitude, the
+  attitude quaternion, and ``time_usec``, the vehicle's boot clock (the same clock as
+  ``time_boot_ms``) at the truth.
+- ArduPilot SITL: SIM_STATE (common.xml; ArduPilot sends it from its simulator's state when asked
+  by SET_MESSAGE_INTERVAL): ``lat_int``/``lon_int``, ``alt`` (metres AMSL) and the attitude
+  quaternion ``q1..q4``. Its older SIMSTATE has no altitude; AHRS2/AHRS3 are estimates. Neither
+  carries a time, so its pose is stamped with the newest vehicle time heard before it.
+
+Nothing here is needed to fly; a vehicle that offers none of it just has no truth.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from typing import Any
 
 from companion.errors import ColError
 from companion.link.base import VehicleLink
 from companion.msg.snapshot import VehicleSnapshot
+from companion.msg.true_pose import TruePose
 
 log = logging.getLogger(__name__)
-TRUTH_MESSAGE = {"PX4": "HIL_STATE_QUATERNION", "ARDUPILOTMEGA": "SIMSTATE"}
-TRUTH_RATE_HZ = 5.0
+TRUTH_MESSAGE = {"PX4": "HIL_STATE_QUATERNION", "ARDUPILOTMEGA": "SIM_STATE"}
+TRUTH_RATE_HZ = 30.0  # the rendered camera's default rate ([companion.perception] render_rate_hz)
 EARTH_RADIUS_M = 6_378_137.0  # WGS-84 equatorial: flat earth around the origin, exact to cm within km
 
 
-def ask_for_truth(link: VehicleLink, autopilot: str) -> None:
-    """Ask for the SITL's true position stream and the local origin; a refusal is logged."""
+def ask_for_truth(link: VehicleLink, autopilot: str, rate_hz: float = TRUTH_RATE_HZ) -> None:
+    """Ask for the SITL's truth stream at ``rate_hz`` (the camera's rate: each frame then has a
+    truth of its own) and the local origin; a refusal is logged."""
     name = TRUTH_MESSAGE.get(autopilot)
     if name is None:
         return
     try:
-        result = link.request_rates({name: TRUTH_RATE_HZ}).get(name)
+        result = link.request_rates({name: rate_hz}).get(name)
         origin = link.request_message("GPS_GLOBAL_ORIGIN", timeout_s=2.0)
     except (ColError, ValueError) as exc:  # nothing to fly for: said, and the run goes on
         log.info("no true position from the vehicle: %s", exc)
         return
-    log.info("true position: %s %s, local origin %s", name, result, "known" if origin else "not sent")
+    log.info("truth: %s at %.0f Hz %s, local origin %s", name, rate_hz, result, "known" if origin else "not sent")
 
 
 def north_east_m(lat_lon_deg: tuple[float, float], origin_deg: tuple[float, float]) -> tuple[float, float]:
@@ -52,3 +64,48 @@ def true_distance_m(snap: VehicleSnapshot, pad_ne_m: tuple[float, float]) -> flo
         return None
     north, east = north_east_m(snap.truth_lat_lon_deg, snap.origin_lat_lon_deg)
     return math.hypot(north - pad_ne_m[0], east - pad_ne_m[1])
+
+
+def euler_from_quaternion(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) in radians of a body-to-NED quaternion (MAVLink's order: w, x, y, z),
+    as ATTITUDE gives them (aerospace Z-Y-X)."""
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def local_ned_m(lat_lon_deg: tuple[float, float], alt_m: float, snap: VehicleSnapshot) -> tuple[float, float, float] | None:
+    """A global point in the snapshot's local frame (north, east, down of GPS_GLOBAL_ORIGIN);
+    None until the origin, with its altitude, is known."""
+    if snap.origin_lat_lon_deg is None or snap.origin_alt_m is None:
+        return None
+    north, east = north_east_m(lat_lon_deg, snap.origin_lat_lon_deg)
+    return north, east, snap.origin_alt_m - alt_m
+
+
+def _pose(snap: VehicleSnapshot, lat_e7: int, lon_e7: int, alt_m: float, q: tuple[float, float, float, float],
+          time_boot_ms: int, source: str, now_s: float) -> TruePose | None:
+    if lat_e7 == 0 and lon_e7 == 0:  # an empty message: no truth
+        return None
+    ned = local_ned_m((lat_e7 / 1e7, lon_e7 / 1e7), alt_m, snap)
+    if ned is None:
+        return None
+    return TruePose(*ned, attitude_rad=euler_from_quaternion(*q), time_boot_ms=max(0, int(time_boot_ms)),
+                    source=source, received_s=now_s)
+
+
+def pose_from_hil_state(msg: Any, snap: VehicleSnapshot, now_s: float) -> TruePose | None:
+    """PX4 SIH's HIL_STATE_QUATERNION as a true pose (alt in mm; time_usec on the boot clock)."""
+    return _pose(snap, int(msg.lat), int(msg.lon), int(msg.alt) / 1000.0, tuple(msg.attitude_quaternion),
+                 int(msg.time_usec) // 1000, "HIL_STATE_QUATERNION", now_s)
+
+
+def pose_from_sim_state(msg: Any, snap: VehicleSnapshot, now_s: float) -> TruePose | None:
+    """ArduPilot SITL's SIM_STATE as a true pose: ``lat_int``/``lon_int`` (its float ``lat``/``lon``
+    carry degE7, not the degrees the spec says), ``alt`` in metres; no time of its own."""
+    return _pose(snap, int(msg.lat_int), int(msg.lon_int), float(msg.alt), (msg.q1, msg.q2, msg.q3, msg.q4),
+                 snap.time_boot_ms, "SIM_STATE", now_s)
+
+
+POSE_FROM = {"HIL_STATE_QUATERNION": pose_from_hil_state, "SIM_STATE": pose_from_sim_state}
