@@ -2,40 +2,79 @@
 telemetry (``--camera render``).
 
 Real PX4 SIH and ArduCopter SITL render nothing. This source renders, at ``rate_hz``, the
-downward view our SITL would render for the pose the vehicle reports: LOCAL_POSITION_NED (height
-taken from the ground the vehicle stood on, as the session takes it: companion/link/home.py)
-and ATTITUDE, with the pad at ``pad_ne_m`` of the vehicle's local frame on the ground vehicle of ``[sitl.world]`` (static, or driving at its set velocity from the first frame).
+downward view our SITL would render for the vehicle's pose, with the pad at ``pad_ne_m`` of the
+vehicle's local frame on the ground vehicle of ``[sitl.world]`` (static, or driving at its set
+velocity from the first frame). The pose is, per frame:
 
-Why the companion's own telemetry and not a second MAVLink connection: it is the very estimate
-the observation is built from (a frame and its observation agree on the pose), it needs no
-second port (ArduCopter SITL sends its telemetry to one client), and the frame's age is exact:
-each frame carries the ``time_boot_ms`` of the telemetry it was rendered from. When telemetry
-stops (nothing newer for ``stale_after_s``) no frame is made: the source reports "no telemetry"
-and the observation says the pad is not visible, never an old frame as a fresh one.
+- **the truth** where the autopilot's SITL sends one (the snapshot's ``true_pose``: PX4 SIH's
+  HIL_STATE_QUATERNION, ArduPilot's SIM_STATE; companion/link/truth.py) and it is fresh (heard
+  within ``stale_after_s``): what a camera on the vehicle would see. Heights are taken from the
+  true ground: the true height where the vehicle last stood disarmed, else the local origin's
+  altitude. The frame is stamped with the truth's own vehicle time;
+- **the estimate** otherwise (a real vehicle, or truth stale or absent): LOCAL_POSITION_NED
+  (height taken from the ground the vehicle stood on, as the session takes it:
+  companion/link/home.py) and ATTITUDE, stamped with the telemetry's ``time_boot_ms``.
 
-What this is not: the vehicle's true pose (the estimate drifts; the picture follows the estimate,
-as a camera fixed to the vehicle would not) and not a physical pad: the vehicle lands on the
-autopilot's own ground, so use a ground vehicle of height 0 there (``vehicle_height_m = 0``).
+Each frame's source is kept (:meth:`RenderedCamera.source_of`) and counted; :meth:`notes` says
+for the episode record how many frames came from each. Why the companion's own telemetry and
+not a second MAVLink connection: it needs no second port (ArduCopter SITL sends its telemetry to
+one client), and the frame's age is exact. When telemetry stops (nothing newer for
+``stale_after_s``) no frame is made: the source reports "no telemetry" and the observation says
+the pad is not visible, never an old frame as a fresh one.
+
+What this is not: a physical pad: the vehicle lands on the autopilot's own ground, so use a
+ground vehicle of height 0 there (``vehicle_height_m = 0``).
 """
 
 from __future__ import annotations
 
 import logging
+import statistics
 import threading
 import time
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable
+from typing import Literal
 
 import numpy as np
 
 from colcommon.frames import Frame
-from companion.link.home import HomeFrame
-from companion.msg.snapshot import VehicleSnapshot
+from companion.link.home import GROUND_DRIFT_M, GROUND_SAMPLES, HomeFrame
+from companion.msg.snapshot import Vec3, VehicleSnapshot
+from companion.msg.true_pose import TruePose
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
 from sitl.world import World
 
 log = logging.getLogger(__name__)
 RENDER_SCHEME = "render"
+PoseSource = Literal["truth", "estimate"]
+SOURCES_KEPT = 1000  # frame number -> source, for the newest frames
+
+
+class TrueGround:
+    """The true ground's down in the local frame: the median true down while the vehicle last
+    stood disarmed (a place more than ``GROUND_DRIFT_M`` from the known ground is a raised
+    surface), else 0 (the local origin's altitude: ArduPilot SITL's origin is its ground)."""
+
+    def __init__(self) -> None:
+        self.down_m: float | None = None
+        self._standing: deque[float] = deque(maxlen=GROUND_SAMPLES)
+        self._was_standing = False
+
+    def update(self, snap: VehicleSnapshot, pose: TruePose) -> None:
+        standing = snap.landed_state == "ON_GROUND" and not snap.armed
+        if standing:
+            if not self._was_standing:
+                self._standing.clear()
+            self._standing.append(pose.down_m)
+            down = statistics.median(self._standing)
+            if self.down_m is None or abs(down - self.down_m) <= GROUND_DRIFT_M:
+                self.down_m = down
+        self._was_standing = standing
+
+    def relative(self, pose: TruePose) -> Vec3:
+        return (pose.north_m, pose.east_m, pose.down_m - (self.down_m or 0.0))
 
 
 class RenderedCamera:
@@ -55,11 +94,17 @@ class RenderedCamera:
         self.success_radius_m = world.success_radius_m
         self.period_s, self.stale_after_s = 1.0 / rate_hz, stale_after_s
         self.home = HomeFrame()
+        self.true_ground = TrueGround()
         self._cond = threading.Condition()
         self._frame: Frame | None = None
         self._number = 0
         self._t0_ms: int | None = None
         self._last_rendered_ms: int | None = None
+        self._last_truth: TruePose | None = None
+        self.last_source: PoseSource | None = None
+        self.truth_source: str | None = None  # the message the newest truth frame came from
+        self.source_counts: Counter[str] = Counter()  # frames per source since the last notes()
+        self._sources: OrderedDict[int, PoseSource] = OrderedDict()
         self.no_telemetry: str | None = "no telemetry yet"
         self.render_times_s: list[float] = []
         self._stop = threading.Event()
@@ -94,44 +139,104 @@ class RenderedCamera:
 
     # ----- rendering ---------------------------------------------------------------------------
     def world_pose(self, snap: VehicleSnapshot) -> tuple[tuple[float, float, float], float]:
-        """(position in the pad's world, world time in s) for a snapshot: north/east from the pad,
-        down from the ground the vehicle stood on."""
-        n, e, d = self.home.relative(snap)
+        """(position in the pad's world, world time in s) for a snapshot's estimate: north/east
+        from the pad, down from the ground the vehicle stood on."""
+        return self._in_world(self.home.relative(snap), snap.time_boot_ms)
+
+    def true_world_pose(self, pose: TruePose) -> tuple[tuple[float, float, float], float]:
+        """(position in the pad's world, world time in s) for a true pose: the pad where the
+        truth puts it (``pad_ne_m`` of the true local frame), down from the true ground."""
+        return self._in_world(self.true_ground.relative(pose), pose.time_boot_ms)
+
+    def _in_world(self, ned_m: Vec3, time_boot_ms: int) -> tuple[tuple[float, float, float], float]:
+        n, e, d = ned_m
         if self._t0_ms is None:
-            self._t0_ms = snap.time_boot_ms
-        t_s = max(0.0, (snap.time_boot_ms - self._t0_ms) / 1000.0)
+            self._t0_ms = time_boot_ms
+        t_s = max(0.0, (time_boot_ms - self._t0_ms) / 1000.0)
         return (n - self.pad_ne_m[0], e - self.pad_ne_m[1], d), t_s
 
     def render(self, snap: VehicleSnapshot) -> Frame:
-        """The frame for one snapshot (also what the thread publishes)."""
+        """The frame for one snapshot's estimate."""
         position, t_s = self.world_pose(snap)
         image = self._renderer.render(position, snap.attitude_rad, t_s)
         return Frame(self._number, max(0, int(snap.time_boot_ms)), image)
 
+    def render_truth(self, pose: TruePose) -> Frame:
+        """The frame for one true pose, stamped with the truth's vehicle time."""
+        position, t_s = self.true_world_pose(pose)
+        image = self._renderer.render(position, pose.attitude_rad, t_s)
+        return Frame(self._number, pose.time_boot_ms, image)
+
+    def fresh_truth(self, snap: VehicleSnapshot, now_s: float) -> TruePose | None:
+        """The snapshot's true pose if it is no older than ``stale_after_s``, else None."""
+        pose = snap.true_pose
+        if pose is None or now_s - pose.received_s > self.stale_after_s:
+            return None
+        return pose
+
+    def source_of(self, frame_number: int) -> PoseSource | None:
+        """What a (recent) frame was rendered from: "truth" or "estimate"."""
+        return self._sources.get(frame_number)
+
+    def notes(self, reset: bool = True) -> list[str]:
+        """For the episode record: how many frames were drawn from truth and from the estimate
+        since the last call (``reset``: start counting again)."""
+        counts = dict(self.source_counts)
+        if reset:
+            self.source_counts = Counter()
+        if not counts:
+            return []
+        truth = f" ({self.truth_source})" if counts.get("truth") and self.truth_source else ""
+        return [f"rendered camera: {counts.get('truth', 0)} frames from the SITL's truth{truth}, "
+                f"{counts.get('estimate', 0)} from the vehicle's estimate"]
+
     def step(self) -> Frame | None:
-        """Render once from the newest telemetry, unless it is stale or already rendered."""
+        """Render once from the newest truth if fresh, else the newest estimate, unless stale or
+        already rendered."""
         snap = self._state()
         now = self._clock()
-        if snap is None or not (snap.position_valid and snap.attitude_valid):
+        if snap is None:
             self._starved("no position and attitude from the vehicle yet")
             return None
-        self.home.update(snap)
+        if snap.position_valid:
+            self.home.update(snap)
+        truth = self.fresh_truth(snap, now)
+        if truth is not None:
+            self.true_ground.update(snap, truth)
+            if truth is self._last_truth:
+                return None
+            return self._publish(lambda: self.render_truth(truth), "truth", truth)
+        if not (snap.position_valid and snap.attitude_valid):
+            self._starved("no position and attitude from the vehicle yet")
+            return None
         if now - snap.received_s > self.stale_after_s:
             self._starved(f"no telemetry for {now - snap.received_s:.1f} s")
             return None
-        if snap.time_boot_ms == self._last_rendered_ms:
+        if snap.time_boot_ms == self._last_rendered_ms and self.last_source == "estimate":
             return None
+        return self._publish(lambda: self.render(snap), "estimate", None)
+
+    def _publish(self, make: Callable[[], Frame], source: PoseSource, truth: TruePose | None) -> Frame | None:
         start = time.perf_counter()
         try:
-            frame = self.render(snap)
+            frame = make()
         except ValueError as exc:  # a non-finite pose: no picture of it
             self._starved(f"unusable pose: {exc}")
             return None
         self.render_times_s.append(time.perf_counter() - start)
         if len(self.render_times_s) > 10_000:
             del self.render_times_s[:5_000]
+        if source != self.last_source:
+            log.info("rendered camera: drawing from %s", f"the SITL's truth ({truth.source})" if truth is not None
+                     else "the vehicle's estimate (no fresh truth)")
         self._number += 1
-        self._last_rendered_ms = snap.time_boot_ms
+        self._last_rendered_ms, self._last_truth, self.last_source = frame.time_boot_ms, truth, source
+        if truth is not None:
+            self.truth_source = truth.source
+        self.source_counts[source] += 1
+        self._sources[frame.frame_number] = source
+        if len(self._sources) > SOURCES_KEPT:
+            self._sources.popitem(last=False)
         with self._cond:
             if self.no_telemetry is not None:
                 log.info("rendered camera: telemetry back, frames resume")
