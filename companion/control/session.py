@@ -196,6 +196,9 @@ class EpisodeRunner:
         if self.help is not None:
             notes.extend(self.help.end(steps))
         notes.extend(self.gaps.notes())
+        source_notes = getattr(self.p.observer.camera, "frame_source_notes", None)
+        if source_notes is not None:  # the rendered camera: frames from truth or the estimate
+            notes.extend(source_notes())
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
 
     def _leave_safe_after_error(self) -> None:

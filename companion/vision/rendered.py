@@ -15,8 +15,9 @@ velocity from the first frame). The pose is, per frame:
   (height taken from the ground the vehicle stood on, as the session takes it:
   companion/link/home.py) and ATTITUDE, stamped with the telemetry's ``time_boot_ms``.
 
-Each frame's source is kept (:meth:`RenderedCamera.source_of`) and counted; :meth:`notes` says
-for the episode record how many frames came from each. Why the companion's own telemetry and
+Each frame's source is kept (:meth:`RenderedCamera.source_of`) and counted;
+:meth:`RenderedCamera.frame_source_notes` says in the episode record how many frames came from
+each (since the last record: the flight to the start included). Why the companion's own telemetry and
 not a second MAVLink connection: it needs no second port (ArduCopter SITL sends its telemetry to
 one client), and the frame's age is exact. When telemetry stops (nothing newer for
 ``stale_after_s``) no frame is made: the source reports "no telemetry" and the observation says
@@ -103,7 +104,7 @@ class RenderedCamera:
         self._last_truth: TruePose | None = None
         self.last_source: PoseSource | None = None
         self.truth_source: str | None = None  # the message the newest truth frame came from
-        self.source_counts: Counter[str] = Counter()  # frames per source since the last notes()
+        self.source_counts: Counter[str] = Counter()  # frames per source since the last record's notes
         self._sources: OrderedDict[int, PoseSource] = OrderedDict()
         self.no_telemetry: str | None = "no telemetry yet"
         self.render_times_s: list[float] = []
@@ -178,7 +179,7 @@ class RenderedCamera:
         """What a (recent) frame was rendered from: "truth" or "estimate"."""
         return self._sources.get(frame_number)
 
-    def notes(self, reset: bool = True) -> list[str]:
+    def frame_source_notes(self, reset: bool = True) -> list[str]:
         """For the episode record: how many frames were drawn from truth and from the estimate
         since the last call (``reset``: start counting again)."""
         counts = dict(self.source_counts)

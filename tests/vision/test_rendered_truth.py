@@ -42,9 +42,9 @@ def test_fresh_truth_is_drawn_with_the_pad_where_the_truth_puts_it_and_says_so()
     assert not np.array_equal(frame.image, expected(world, (1.5, 1.0, -4.0), estimate.attitude_rad))
     assert cam.source_of(frame.frame_number) == "truth" and cam.last_source == "truth"
     assert cam.step() is None  # the same truth is not drawn twice
-    assert cam.notes() == ["rendered camera: 1 frames from the SITL's truth (HIL_STATE_QUATERNION), "
+    assert cam.frame_source_notes() == ["rendered camera: 1 frames from the SITL's truth (HIL_STATE_QUATERNION), "
                            "0 from the vehicle's estimate"]
-    assert cam.notes() == []  # counted again from zero for the next episode
+    assert cam.frame_source_notes() == []  # counted again from zero for the next episode
 
 
 @pytest.mark.parametrize("true_pose", [None, truth(0.0, 0.0, -5.0, received_s=9.0)], ids=["absent", "stale"])
@@ -57,7 +57,7 @@ def test_without_fresh_truth_the_estimate_is_drawn_and_the_record_says_so(true_p
     assert frame is not None and frame.time_boot_ms == estimate.time_boot_ms
     assert np.array_equal(frame.image, expected(world, (1.5, 1.0, -4.0), estimate.attitude_rad))
     assert cam.source_of(frame.frame_number) == "estimate"
-    assert cam.notes() == ["rendered camera: 0 frames from the SITL's truth, 1 from the vehicle's estimate"]
+    assert cam.frame_source_notes() == ["rendered camera: 0 frames from the SITL's truth, 1 from the vehicle's estimate"]
 
 
 def test_the_camera_switches_to_truth_when_it_comes_and_back_when_it_goes() -> None:
@@ -72,7 +72,7 @@ def test_the_camera_switches_to_truth_when_it_comes_and_back_when_it_goes() -> N
     state["snap"] = replace(state["snap"], time_boot_ms=1700, received_s=10.7)
     frame = cam.step()
     assert frame is not None and cam.last_source == "estimate" and frame.time_boot_ms == 1700
-    assert cam.notes() == ["rendered camera: 1 frames from the SITL's truth (HIL_STATE_QUATERNION), "
+    assert cam.frame_source_notes() == ["rendered camera: 1 frames from the SITL's truth (HIL_STATE_QUATERNION), "
                            "2 from the vehicle's estimate"]
 
 
@@ -85,3 +85,30 @@ def test_true_heights_come_from_the_true_ground_the_vehicle_stood_on() -> None:
     cam.step()
     position, _ = cam.true_world_pose(truth(PAD[0], PAD[1], -2.65))
     assert position == pytest.approx((0.0, 0.0, -3.0))
+
+
+def test_the_episode_record_says_what_the_rendered_camera_drew_from() -> None:
+    from colcommon.frames import Frame
+    from companion.control.arbiter import Phase
+    from companion.vision.observer import Observer
+    from companion.vision.perception import PadDetector
+    from tests.control.test_session import KinematicLink, ScriptedHuman, make_runner, policy_runner
+
+    class Rendered:
+        """A rendered camera's frames and its per-record note (companion/vision/rendered.py)."""
+
+        vehicle_time_stamps = True
+
+        def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None:
+            return Frame(0, time_boot_ms, np.zeros((240, 320, 3), np.uint8))
+
+        def latest(self) -> Frame | None:
+            return None
+
+        def frame_source_notes(self) -> list[str]:
+            return ["rendered camera: 7 frames from the SITL's truth (SIM_STATE), 0 from the vehicle's estimate"]
+
+    runner, _ = make_runner(KinematicLink((0.0, 0.0, -5.0)), ScriptedHuman(set()), runner=policy_runner(), max_steps=4)
+    runner.p.observer = Observer(Rendered(), PadDetector(), (320, 240))  # type: ignore[arg-type]
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert "rendered camera: 7 frames from the SITL's truth (SIM_STATE), 0 from the vehicle's estimate" in record.notes
