@@ -501,6 +501,8 @@ def test_each_message_changes_exactly_the_fields_its_handler_names() -> None:
                                                                           489267, 0, 0, 0, 0, 0, 0, 0, 0), enc),
         "SIMSTATE": _ardupilot_decoded(ardupilotmega.MAVLink_simstate_message(0, 0, 0, 0, 0, 0, 0, 0, 0, -353632621,
                                                                               1491652374)),
+        "SIM_STATE": _ardupilot_decoded(ardupilotmega.MAVLink_sim_state_message(
+            1, 0, 0, 0, 0, 0, 0, 0, 0, -9.8, 0, 0, 0, -353632621, 1491652374, 584.09, 0, 0, 0, 0, 0, -353632621, 1491652374)),
         "GPS_GLOBAL_ORIGIN": _decoded(enc.gps_global_origin_encode(473977486, 85455961, 488000), enc),
     }
     assert messages.keys() == HANDLERS.keys()
