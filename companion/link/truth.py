@@ -6,9 +6,9 @@ touchdown is scored from the reported position (what a field test would have), a
 distance is set beside it where the SITL knows the truth. With GPS_GLOBAL_ORIGIN (where the local
 frame's origin is, and its altitude) the truth goes into the local frame, where the pad is given:
 
-- PX4 SIH: HIL_STATE_QUATERNION, from SIH's ground truth: latitude, longitude, altitude, the
-  attitude quaternion, and ``time_usec``, the vehicle's boot clock (the same clock as
-  ``time_boot_ms``) at the truth.
+- PX4 SIH: HIL_STATE_QUATERNION, from SIH's ground truth: latitude, longitude, altitude (mm)
+  and the attitude quaternion. Its ``time_usec`` would be the boot clock at the truth, but the
+  prebuilt PX4 (2026-03-02) sends 0 there: then, as on ArduPilot, the newest vehicle time heard.
 - ArduPilot SITL: SIM_STATE (common.xml; ArduPilot sends it from its simulator's state when asked
   by SET_MESSAGE_INTERVAL): ``lat_int``/``lon_int``, ``alt`` (metres AMSL) and the attitude
   quaternion ``q1..q4``. Its older SIMSTATE has no altitude; AHRS2/AHRS3 are estimates. Neither
@@ -96,9 +96,12 @@ def _pose(snap: VehicleSnapshot, lat_e7: int, lon_e7: int, alt_m: float, q: tupl
 
 
 def pose_from_hil_state(msg: Any, snap: VehicleSnapshot, now_s: float) -> TruePose | None:
-    """PX4 SIH's HIL_STATE_QUATERNION as a true pose (alt in mm; time_usec on the boot clock)."""
+    """PX4 SIH's HIL_STATE_QUATERNION as a true pose (alt in mm; ``time_usec`` on the boot clock,
+    or 0: then the newest vehicle time heard)."""
+    time_usec = int(msg.time_usec)
+    time_boot_ms = time_usec // 1000 if time_usec > 0 else snap.time_boot_ms
     return _pose(snap, int(msg.lat), int(msg.lon), int(msg.alt) / 1000.0, tuple(msg.attitude_quaternion),
-                 int(msg.time_usec) // 1000, "HIL_STATE_QUATERNION", now_s)
+                 time_boot_ms, "HIL_STATE_QUATERNION", now_s)
 
 
 def pose_from_sim_state(msg: Any, snap: VehicleSnapshot, now_s: float) -> TruePose | None:

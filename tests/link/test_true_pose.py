@@ -70,6 +70,10 @@ def test_px4_hil_state_quaternion_is_a_true_pose_in_the_local_frame_at_its_own_t
     assert pose.time_boot_ms == 12_345  # time_usec on the boot clock, not the snapshot's newest stamp
     assert pose.received_s == 5.0
     assert s.origin_alt_m == pytest.approx(PX4_ORIGIN[2])
+    # The prebuilt PX4 sends time_usec = 0 (and q = -1, 0, 0, 0 for no rotation): the newest vehicle time.
+    unstamped = fold(s, hil_state(0.0, 0.0, 0.0, (-1.0, 0.0, 0.0, 0.0), time_usec=0)).true_pose
+    assert unstamped is not None and unstamped.time_boot_ms == 99_999
+    assert unstamped.attitude_rad == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
 
 
 def test_ardupilot_sim_state_is_a_true_pose_with_its_altitude() -> None:
