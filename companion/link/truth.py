@@ -31,17 +31,19 @@ from companion.msg.true_pose import TruePose
 log = logging.getLogger(__name__)
 TRUTH_MESSAGE = {"PX4": "HIL_STATE_QUATERNION", "ARDUPILOTMEGA": "SIM_STATE"}
 TRUTH_RATE_HZ = 30.0  # the rendered camera's default rate ([companion.perception] render_rate_hz)
+ORIGIN_RATE_HZ = 1.0  # the origin streamed too: an autopilot sets it only once its estimator has GPS
 EARTH_RADIUS_M = 6_378_137.0  # WGS-84 equatorial: flat earth around the origin, exact to cm within km
 
 
 def ask_for_truth(link: VehicleLink, autopilot: str, rate_hz: float = TRUTH_RATE_HZ) -> None:
     """Ask for the SITL's truth stream at ``rate_hz`` (the camera's rate: each frame then has a
-    truth of its own) and the local origin; a refusal is logged."""
+    truth of its own) and the local origin, once now and then at ``ORIGIN_RATE_HZ`` (an origin
+    set later still arrives); a refusal is logged."""
     name = TRUTH_MESSAGE.get(autopilot)
     if name is None:
         return
     try:
-        result = link.request_rates({name: rate_hz}).get(name)
+        result = link.request_rates({name: rate_hz, "GPS_GLOBAL_ORIGIN": ORIGIN_RATE_HZ}).get(name)
         origin = link.request_message("GPS_GLOBAL_ORIGIN", timeout_s=2.0)
     except (ColError, ValueError) as exc:  # nothing to fly for: said, and the run goes on
         log.info("no true position from the vehicle: %s", exc)

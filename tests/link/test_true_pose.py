@@ -124,7 +124,8 @@ def test_truth_is_asked_for_at_the_cameras_rate_and_sim_state_on_ardupilot() -> 
     ask_for_truth(link, "ARDUPILOTMEGA", rate_hz=25.0)  # type: ignore[arg-type]
     ask_for_truth(link, "PX4")  # type: ignore[arg-type]
     ask_for_truth(link, "UNKNOWN(3)")  # type: ignore[arg-type]
-    assert link.asked == [{"SIM_STATE": 25.0}, {"HIL_STATE_QUATERNION": 30.0}]
+    assert link.asked == [{"SIM_STATE": 25.0, "GPS_GLOBAL_ORIGIN": 1.0},
+                          {"HIL_STATE_QUATERNION": 30.0, "GPS_GLOBAL_ORIGIN": 1.0}]
 
 
 def test_a_true_pose_checks_itself() -> None:
