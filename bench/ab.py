@@ -1,0 +1,106 @@
+"""A bench before and after a change: two commits, each from a clean clone, run alternately.
+
+Why alternately: a machine's speed drifts during a session (other jobs, thermal state), and runs
+of one side in a row would carry that drift into the comparison. Each of ``--runs`` rounds runs
+both sides, the side that goes first alternating, and each run's last JSON line is kept. The
+summary gives, for every numeric figure whose name says it is a rate or a cost
+(``steps_per_s``, ``cpu_ms_per_step``, ...), the median of each side and after / before.
+
+    python bench/ab.py BEFORE AFTER --bench rl_env_speed.py [--runs 3] [--out DIR] [-- ARGS...]
+
+Both clones use this checkout's installed packages (``PYTHONPATH`` points at the clone). The
+raw lines go to ``DIR/<before|after>-<bench>-<round>.json``; the summary is the last line printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FIGURES = ("steps_per_s", "cpu_ms_per_step", "episodes_per_core_s", "per_core_second", "ms_per_step")
+
+
+def clone(commit: str, into: Path) -> Path:
+    """A clean clone of ``commit`` (the repository as committed, nothing of the working tree)."""
+    path = into / commit
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(path)], check=True)
+    subprocess.run(["git", "-C", str(path), "checkout", "-q", commit], check=True)
+    return path
+
+
+def last_json(text: str) -> dict:
+    for line in reversed(text.strip().splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)
+    raise ValueError("the bench printed no JSON line")
+
+
+def run_bench(tree: Path, bench: str, args: list[str]) -> dict:
+    proc = subprocess.run([sys.executable, f"bench/{bench}", *args], cwd=tree, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(tree)})
+    if proc.returncode != 0:
+        raise SystemExit(f"{bench} in {tree.name} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    return last_json(proc.stdout)
+
+
+def figures(line: dict, prefix: str = "") -> dict[str, float]:
+    """Every numeric leaf whose name is a rate or a cost, by its dotted path."""
+    out: dict[str, float] = {}
+    for key, value in line.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(figures(value, path + "."))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and any(f in key for f in FIGURES):
+            out[path] = float(value)
+    return out
+
+
+def summary(before: list[dict], after: list[dict]) -> dict[str, dict[str, float]]:
+    out = {}
+    fb, fa = [figures(x) for x in before], [figures(x) for x in after]
+    for name in sorted(set.intersection(*(set(f) for f in fb + fa))):
+        b, a = statistics.median(f[name] for f in fb), statistics.median(f[name] for f in fa)
+        out[name] = {"before": b, "after": a, "after_over_before": round(a / b, 4) if b else float("nan")}
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("before")
+    parser.add_argument("after")
+    parser.add_argument("--bench", required=True, help="a script in bench/, e.g. rl_env_speed.py")
+    parser.add_argument("--runs", type=int, default=3, help="rounds, each running both sides (default 3)")
+    parser.add_argument("--out", type=Path, help="folder for the raw lines (default: none kept)")
+    parser.add_argument("args", nargs=argparse.REMAINDER, help="after --: the bench's own arguments")
+    opts = parser.parse_args()
+    args = opts.args[1:] if opts.args[:1] == ["--"] else opts.args
+    if opts.runs < 1:
+        parser.error("--runs must be >= 1")
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"before": clone(opts.before, Path(tmp)), "after": clone(opts.after, Path(tmp))}
+        lines: dict[str, list[dict]] = {"before": [], "after": []}
+        for i in range(opts.runs):
+            order = ("before", "after") if i % 2 == 0 else ("after", "before")
+            for side in order:
+                print(f"round {i + 1}/{opts.runs}: {side}", file=sys.stderr, flush=True)
+                line = run_bench(trees[side], opts.bench, args)
+                lines[side].append(line)
+                if opts.out is not None:
+                    opts.out.mkdir(parents=True, exist_ok=True)
+                    stem = Path(opts.bench).stem
+                    (opts.out / f"{side}-{stem}-{i + 1}.json").write_text(json.dumps(line) + "\n")
+    refs = [x.get("machine_ref_rt") for side in lines.values() for x in side if x.get("machine_ref_rt")]
+    print(json.dumps({"bench": opts.bench, "before": opts.before, "after": opts.after, "runs": opts.runs,
+                      "figures": summary(lines["before"], lines["after"]),
+                      "machine_ref_rt": statistics.median(refs) if refs else None}))
+
+
+if __name__ == "__main__":
+    main()
