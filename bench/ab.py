@@ -78,9 +78,9 @@ def main() -> None:
     parser.add_argument("--bench", required=True, help="a script in bench/, e.g. rl_env_speed.py")
     parser.add_argument("--runs", type=int, default=3, help="rounds, each running both sides (default 3)")
     parser.add_argument("--out", type=Path, help="folder for the raw lines (default: none kept)")
-    parser.add_argument("args", nargs=argparse.REMAINDER, help="after --: the bench's own arguments")
-    opts = parser.parse_args()
-    args = opts.args[1:] if opts.args[:1] == ["--"] else opts.args
+    argv = sys.argv[1:]
+    split = argv.index("--") if "--" in argv else len(argv)
+    opts, args = parser.parse_args(argv[:split]), argv[split + 1:]  # after --: the bench's own arguments
     if opts.runs < 1:
         parser.error("--runs must be >= 1")
     with tempfile.TemporaryDirectory() as tmp:
