@@ -41,20 +41,20 @@ class VehicleSnapshot:
     ground_distance_s: float = 0.0  # monotonic time of that reading
     truth_lat_lon_deg: tuple[float, float] | None = None
     """A simulator's true position, where the autopilot's SITL sends one (PX4 SIH:
-    HIL_STATE_QUATERNION; ArduPilot: SIMSTATE); never on a real vehicle."""
+    HIL_STATE_QUATERNION; ArduPilot: SIMSTATE or SIM_STATE); never on a real vehicle."""
     origin_lat_lon_deg: tuple[float, float] | None = None
     """Where the local frame's origin is (GPS_GLOBAL_ORIGIN), to put the pad on the true map."""
-    origin_alt_m: float | None = None
-    """The local origin's altitude (GPS_GLOBAL_ORIGIN, metres AMSL): true heights are taken from it."""
-    true_pose: TruePose | None = None
-    """The simulator's true pose in the local frame (companion/link/truth.py), where the
-    autopilot's SITL sends one and the local origin is known; never on a real vehicle."""
     position_time_boot_ms: int | None = None
     """The vehicle's own stamp of the position and velocity held here (LOCAL_POSITION_NED's
     time_boot_ms; None until one arrives): what says whether a control step's observation is
     newer than the last one's (companion/control/freshness.py), not its arrival."""
     attitude_time_boot_ms: int | None = None
     """The vehicle's own stamp of the attitude and rates held here (ATTITUDE's time_boot_ms)."""
+    origin_alt_m: float | None = None
+    """The local origin's altitude (GPS_GLOBAL_ORIGIN, metres AMSL): true heights are taken from it."""
+    true_pose: TruePose | None = None
+    """The simulator's true pose in the local frame (companion/link/truth.py), where the
+    autopilot's SITL sends one and the local origin is known; never on a real vehicle."""
 
     @property
     def in_air(self) -> bool:
