@@ -123,8 +123,9 @@ def score(outcome: str, *, simulated: bool, touchdown: Mapping[str, Any] | None 
     With a simulator (``simulated``) its ground truth judges: ``touchdown`` is its touchdown
     record (success, distance to the pad, speed), None if it has none. Without one, the distance
     is the companion's estimate (``estimated_distance_m``, given for a touchdown), with the true
-    one beside it where the autopilot's SITL sends truth; success is the estimate within
-    ``judge_radius_m`` (None: unknown). Anything but a touchdown fails wherever success is judged.
+    one beside it where the autopilot's SITL sends truth; success is the true distance within
+    ``judge_radius_m`` where it is known (a camera sees the true pad, not the estimate's), else
+    the estimate's (None: no radius, unknown). Anything but a touchdown fails wherever success is judged.
     """
     landed = outcome == TOUCHDOWN
     if simulated:
@@ -135,7 +136,8 @@ def score(outcome: str, *, simulated: bool, touchdown: Mapping[str, Any] | None 
         return Score(bool(touchdown["success"]), _rounded(touchdown["distance_to_pad_m"]),
                      _rounded(touchdown["speed_m_s"]))
     if landed and estimated_distance_m is not None:
-        success = None if judge_radius_m is None else estimated_distance_m <= judge_radius_m
+        judged_m = estimated_distance_m if true_distance_m is None else true_distance_m
+        success = None if judge_radius_m is None else judged_m <= judge_radius_m
         return Score(success, _rounded(estimated_distance_m), None, _rounded(true_distance_m))
     return Score(success=False if judge_radius_m is not None and not landed else None)
 
@@ -154,6 +156,8 @@ def score_estimate(outcome: str, relative_ned_m: tuple[float, float, float] | No
     notes = ["touchdown distance estimated from the vehicle's position relative to home" if home_known else
              "touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)"]
     if judge_radius_m is not None:
-        notes.append("success judged from the vehicle's reported position (the rendered pad is where it puts it)")
+        notes.append("success judged by the autopilot's ground truth (the pad where the truth puts it)"
+                     if true_distance_m is not None else
+                     "success judged from the vehicle's reported position (the rendered pad is where it puts it)")
     return score(outcome, simulated=False, estimated_distance_m=estimate, true_distance_m=true_distance_m,
                  judge_radius_m=judge_radius_m), notes

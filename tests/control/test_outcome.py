@@ -86,9 +86,12 @@ def test_scores_by_truth() -> None:
         assert score(other, simulated=True, touchdown=TRUTH) == Score(success=False)
 
 
-def test_scores_by_estimate_with_and_without_a_judge() -> None:
+def test_scores_by_truth_where_known_else_by_estimate_with_and_without_a_judge() -> None:
     judged = score(TOUCHDOWN, simulated=False, estimated_distance_m=0.31, true_distance_m=0.52, judge_radius_m=0.5)
-    assert judged == Score(True, 0.31, None, 0.52)
+    assert judged == Score(False, 0.31, None, 0.52)  # on the pad by the estimate, off it by the truth
+    assert score(TOUCHDOWN, simulated=False, estimated_distance_m=0.61, true_distance_m=0.2,
+                 judge_radius_m=0.5) == Score(True, 0.61, None, 0.2)
+    assert score(TOUCHDOWN, simulated=False, estimated_distance_m=0.31, judge_radius_m=0.5).success is True
     assert score(TOUCHDOWN, simulated=False, estimated_distance_m=0.7, judge_radius_m=0.5).success is False
     assert score(TOUCHDOWN, simulated=False, estimated_distance_m=0.31).success is None  # nobody judges
     assert score(TIMEOUT, simulated=False, judge_radius_m=0.5) == Score(success=False)
@@ -133,9 +136,12 @@ PAD = (1.0, 2.0, -1.5)
 def test_an_estimated_touchdown_is_scored_from_home_and_says_how() -> None:
     result, notes = score_estimate(TOUCHDOWN, (4.0, 6.0, -0.1), PAD, home_known=True, true_distance_m=5.123456,
                                    judge_radius_m=5.5)
-    assert result == Score(True, 5.0, None, 5.1235)  # 3-4-5 from the pad; the truth beside it
+    assert result == Score(True, 5.0, None, 5.1235)  # 3-4-5 from the pad; the truth beside it, and judging
     assert notes == ["touchdown distance estimated from the vehicle's position relative to home",
-                     "success judged from the vehicle's reported position (the rendered pad is where it puts it)"]
+                     "success judged by the autopilot's ground truth (the pad where the truth puts it)"]
+    result, notes = score_estimate(TOUCHDOWN, (4.0, 6.0, -0.1), PAD, home_known=True, judge_radius_m=5.5)
+    assert result == Score(True, 5.0, None, None)
+    assert notes[-1] == "success judged from the vehicle's reported position (the rendered pad is where it puts it)"
     result, notes = score_estimate(TOUCHDOWN, (4.0, 6.0, -0.1), PAD, home_known=False)
     assert result == Score(None, 5.0, None, None)  # nobody judges
     assert notes == ["touchdown distance estimated from the vehicle's position (no HOME_POSITION: from z = 0)"]
