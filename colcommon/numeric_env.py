@@ -285,17 +285,26 @@ RECORDS_NAME = "environment.jsonl"
 
 
 def source_commit(root: Path | None = None) -> str | None:
-    """The code's git commit (``+dirty`` with uncommitted changes), or None outside a checkout."""
+    """The code's git commit (``+dirty`` with uncommitted changes), or None outside a checkout.
+
+    A clean export of a commit (``git archive``, e.g. results/learner-ablation/run.py's) is no
+    checkout: its commit is the one its ``COMMIT`` file names, never that of a checkout it happens
+    to sit inside."""
     import subprocess
 
-    where = root or Path(__file__).resolve().parent.parent
+    where = (root or Path(__file__).resolve().parent.parent).resolve()
+    marker = where / "COMMIT"
     try:
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=where, capture_output=True, text=True,
+                             timeout=10, check=True).stdout.strip()
+        if Path(top).resolve() != where:
+            return marker.read_text().strip() if marker.is_file() else None
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
                               timeout=10, check=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        return None
+        return marker.read_text().strip() if marker.is_file() else None
     return head + ("+dirty" if dirty else "")
 
 

@@ -124,3 +124,22 @@ def test_the_same_kernels_in_another_order_or_asked_for_explicitly_are_no_differ
     other = {**asked, "blas": [{**lib, "architecture": "Haswell"}], "variables": {"OPENBLAS_CORETYPE": "Haswell"}}
     assert ne.differences(auto, other) == ["blas.openblas 0.3.31: SkylakeX -> Haswell",
                                            "variables.OPENBLAS_CORETYPE: SkylakeX -> Haswell"]
+
+
+def test_the_source_commit_of_a_checkout_and_of_an_export_inside_one(tmp_path) -> None:
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@example.com"]
+    subprocess.run([*git, "init", "-q"], cwd=repo, check=True)
+    (repo / "a.txt").write_text("a\n")
+    subprocess.run([*git, "add", "a.txt"], cwd=repo, check=True)
+    subprocess.run([*git, "commit", "-qm", "a"], cwd=repo, check=True)
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True).stdout.strip()
+    assert ne.source_commit(repo) == head
+    (repo / "a.txt").write_text("b\n")
+    assert ne.source_commit(repo) == head + "+dirty"
+    export = repo / "runs" / "code"  # an exported commit inside the checkout: not the checkout's HEAD
+    export.mkdir(parents=True)
+    assert ne.source_commit(export) is None
+    (export / "COMMIT").write_text("0123abc\n")
+    assert ne.source_commit(export) == "0123abc"
