@@ -407,7 +407,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             runner=runner if runner is not None else _Frozen(learner.latest_snapshot), dataset=dataset,
             control=control,
             asker=HelpAsker(cfg.ask, 1.0 / cfg.session.control_rate_hz) if cfg.ask.enabled else None,
-            landing=cfg.landing,
+            landing=cfg.landing, truth_rate_hz=cfg.perception.render_rate_hz,
             demo_noise=DemoNoise(cfg.learner.demo_noise_std, cfg.learner.seed) if cfg.learner.demo_noise_std > 0 else None,
             judge_radius_m=camera.success_radius_m if isinstance(camera, RenderedCamera) and simulator is None else None,
         )

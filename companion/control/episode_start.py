@@ -39,6 +39,7 @@ class StartParts(Protocol):
     cfg: SessionConfig
     simulator: SimulatorClient | None
     lander: PrecisionLander | None
+    truth_rate_hz: float
 
 
 class EpisodeStart:
@@ -166,7 +167,7 @@ class EpisodeStart:
             raise LinkError("no telemetry: cannot start the episode")
         if not self._asked_truth:
             self._asked_truth = True
-            ask_for_truth(port.link, snap.autopilot)
+            ask_for_truth(port.link, snap.autopilot, self.parts.truth_rate_hz)
         if not snap.in_air:
             take_off(port.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
             for _ in range(int(30 * cfg.control_rate_hz)):

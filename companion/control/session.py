@@ -56,7 +56,7 @@ from companion.learning.dataset import HumanDataset
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect
 from companion.link.home import HomeFrame
-from companion.link.truth import true_distance_m
+from companion.link.truth import TRUTH_RATE_HZ, true_distance_m
 from companion.msg.command import JoystickCommand
 from companion.msg.episode import EpisodeRecord
 from companion.msg.snapshot import VehicleSnapshot
@@ -106,6 +106,9 @@ class EpisodeParts:
     demo_noise: DemoNoise | None = None
     """Stick noise on the demonstration steps the vehicle flies (companion/control/demo_noise.py,
     ``[companion.learner] demo_noise_std``); None: the person's sticks as they are."""
+    truth_rate_hz: float = TRUTH_RATE_HZ
+    """How often the autopilot's SITL is asked for its truth: the rendered camera's rate
+    (``[companion.perception] render_rate_hz``), so each frame has a truth of its own."""
     lander: PrecisionLander | None = None
     """The autopilot's own precision landing flies each episode after its start, fed with
     LANDING_TARGET (companion/control/precland.py); None: the person or the policy flies."""

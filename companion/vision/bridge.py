@@ -20,6 +20,7 @@ from pathlib import Path
 from colcommon.frames import Frame
 from companion.config import load_companion_config
 from companion.link import open_link
+from companion.link.truth import ask_for_truth
 from companion.vision.rendered import RenderedCamera
 from sitl.config import load_sitl_config
 from sitl.frames import FrameServer
@@ -53,6 +54,9 @@ def run_bridge(connection: str, config_path: Path | None = None, host: str = "12
     link = open_link(cfg.link.model_copy(update={"connection": connection, "request_rates_on_connect": True}))
     try:
         link.connect(timeout_s=connect_timeout_s)
+        state = link.state()
+        if state is not None:  # draw from the SITL's truth where it sends one (companion/link/truth.py)
+            ask_for_truth(link, state.autopilot, cfg.perception.render_rate_hz)
         pad_n, pad_e, _ = cfg.session.pad_ned_m
         camera = RenderedCamera(link.state, sitl_cfg.camera, sitl_cfg.world, (pad_n, pad_e),
                                 rate_hz=cfg.perception.render_rate_hz)
