@@ -110,8 +110,8 @@ def collect(arms: list[str]) -> None:
     for arm in arms:
         src, dst = RUNS / arm, HERE / arm
         dst.mkdir(exist_ok=True)
-        for name in ("results.jsonl", "environment.jsonl", "timings.jsonl"):
-            (dst / name).write_bytes((src / name).read_bytes())
+        for name in ("results.jsonl", "environment.jsonl", "timings.jsonl"):  # paths as the repository's, not this machine's
+            (dst / name).write_text((src / name).read_text().replace(f"{ROOT}/", ""))
         lines = []
         for trial in sorted((src / "trials").iterdir()):
             for line in (trial / "eval_episodes.jsonl").read_text().splitlines():
