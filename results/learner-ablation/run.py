@@ -8,6 +8,9 @@ resumable (`col experiment` resumes a results folder; a finished arm is skipped)
     python results/learner-ablation/run.py collect [ARM ...]  # per trial and per start into results/learner-ablation/
     python results/learner-ablation/run.py analyse            # summary.json and table.md, as PLAN.md says
 
+``--round 2`` before the step runs the second round instead (PLAN.md, amendment 2): replicates 2
+and 3, the arms of ROUND_SWITCHES[2], everything under round-2/ (here and in runs/).
+
 An arm is SET-SWITCH: SET scripted (P1-P4, the paper's level, configs/paper.toml) or human-like
 (H01-H08, configs/human-like.toml); SWITCH base (every switch off: the paper's CoL) or one switch
 on. The runs use one commit's library, exported clean (``git archive``) to
@@ -43,20 +46,39 @@ SWITCHES: dict[str, dict[str, object]] = {
 """Each switch's settings, fixed in PLAN.md before the runs (the rest at their defaults)."""
 EXPERIMENT = {"conditions": '["col"]', "interactions": "[8, 20]", "seeds": "[0, 1]",
               "eval_runs": "50", "eval_seed": "600000"}
-ARMS = [f"{s}-{w}" for s in SETS for w in SWITCHES]
+ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]"}
+"""Each round's replicates: the second (PLAN.md, amendment 2) on cells the first never saw."""
+ROUND_SWITCHES = {1: list(SWITCHES), 2: ["base", "mirror", "weighting", "dart"]}
+"""Each round's arms: the second retries the switches the first did not show, and DART again."""
 BOOT_SEED = 0
+
+
+class Round:
+    """Where one round's files live, here and under runs/: the first round's at the top, as
+    committed; a later round's in round-N/ of each."""
+
+    def __init__(self, number: int) -> None:
+        self.number = number
+        self.here = HERE if number == 1 else HERE / f"round-{number}"
+        self.runs = RUNS if number == 1 else RUNS / f"round-{number}"
+        self.code = self.runs / "code"
+        self.arms = [f"{s}-{w}" for s in SETS for w in ROUND_SWITCHES[number]]
+        self.experiment = {**EXPERIMENT, "seeds": ROUND_SEEDS[number]}
+
+    def rel(self, path: Path) -> str:
+        return str(path.relative_to(ROOT))
 
 
 def toml_value(v: object) -> str:
     return "true" if v is True else "false" if v is False else json.dumps(v)
 
 
-def arm_config(arm: str) -> str:
-    """The set's experiment file with the ablation's [experiment] and the switch's learner keys."""
+def arm_config(arm: str, rnd: Round) -> str:
+    """The set's experiment file with the round's [experiment] and the switch's learner keys."""
     set_name, switch = arm.split("-", 1) if not arm.startswith("human-like") else ("human-like", arm[11:])
     source, people = SETS[set_name]
     text = (ROOT / source).read_text()
-    values = {**EXPERIMENT, "participants": json.dumps(people)}
+    values = {**rnd.experiment, "participants": json.dumps(people)}
     for key, value in values.items():
         text, n = re.subn(rf"^{key} = .*$", f"{key} = {value}", text, count=1, flags=re.M)
         if n != 1:
@@ -66,50 +88,52 @@ def arm_config(arm: str) -> str:
                       count=1, flags=re.M)
     if n != 1:
         raise SystemExit(f"{source}: no [companion.learner] table with mode = \"budgeted\"")
-    header = f"# The learner ablation's arm {arm} (results/learner-ablation/PLAN.md), made from {source}\n"
+    which = "" if rnd.number == 1 else f", round {rnd.number}"
+    header = f"# The learner ablation's arm {arm}{which} (results/learner-ablation/PLAN.md), made from {source}\n"
     return header + text
 
 
-def configs() -> None:
-    for arm in ARMS:
-        path = HERE / "configs" / f"{arm}.toml"
-        path.parent.mkdir(exist_ok=True)
-        path.write_text(arm_config(arm))
-        print(path.relative_to(ROOT))
+def configs(rnd: Round) -> None:
+    for arm in rnd.arms:
+        path = rnd.here / "configs" / f"{arm}.toml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(arm_config(arm, rnd))
+        print(rnd.rel(path))
 
 
-def code(commit: str = "HEAD") -> None:
-    """runs/learner-ablation/code/: the repository at ``commit`` as committed (a later session
-    continues with the commit the first arms ran at, RUN.md)."""
-    if (CODE / "COMMIT").exists():
-        print(f"runs/learner-ablation/code holds {(CODE / 'COMMIT').read_text().strip()} already")
+def code(rnd: Round, commit: str = "HEAD") -> None:
+    """The round's library: the repository at ``commit`` as committed (a later session continues
+    with the commit the round's first arms ran at, RUN.md)."""
+    if (rnd.code / "COMMIT").exists():
+        print(f"{rnd.rel(rnd.code)} holds {(rnd.code / 'COMMIT').read_text().strip()} already")
         return
-    shutil.rmtree(CODE, ignore_errors=True)
-    CODE.mkdir(parents=True)
+    shutil.rmtree(rnd.code, ignore_errors=True)
+    rnd.code.mkdir(parents=True)
     head = subprocess.run(["git", "rev-parse", commit], cwd=ROOT, capture_output=True, text=True,
                           check=True).stdout.strip()
     archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(CODE)], input=archive, check=True)
-    (CODE / "COMMIT").write_text(head + "\n")
-    print(f"runs/learner-ablation/code: {head}")
+    subprocess.run(["tar", "-x", "-C", str(rnd.code)], input=archive, check=True)
+    (rnd.code / "COMMIT").write_text(head + "\n")
+    print(f"{rnd.rel(rnd.code)}: {head}")
 
 
-def run(arms: list[str]) -> None:
+def run(rnd: Round, arms: list[str]) -> None:
     """``col experiment`` per arm, from inside the export (its configs are the committed ones)."""
-    if not (CODE / "COMMIT").exists():
+    if not (rnd.code / "COMMIT").exists():
         raise SystemExit("no exported library: run the 'code' step first")
     for arm in arms:
-        cmd = [str(ROOT / ".venv/bin/col"), "experiment", "--config", f"results/learner-ablation/configs/{arm}.toml",
-               "--workers", "2", "--out", str(RUNS / arm)]
+        config = rnd.rel(rnd.here / "configs" / f"{arm}.toml")
+        cmd = [str(ROOT / ".venv/bin/col"), "experiment", "--config", config,
+               "--workers", "2", "--out", str(rnd.runs / arm)]
         print(" ".join(cmd), flush=True)
-        subprocess.run(cmd, check=True, cwd=CODE, env={**os.environ, "PYTHONPATH": str(CODE)})
+        subprocess.run(cmd, check=True, cwd=rnd.code, env={**os.environ, "PYTHONPATH": str(rnd.code)})
 
 
-def collect(arms: list[str]) -> None:
+def collect(rnd: Round, arms: list[str]) -> None:
     """Each arm's trial lines, environment and timings, and one line per validation start."""
     for arm in arms:
-        src, dst = RUNS / arm, HERE / arm
-        dst.mkdir(exist_ok=True)
+        src, dst = rnd.runs / arm, rnd.here / arm
+        dst.mkdir(parents=True, exist_ok=True)
         for name in ("results.jsonl", "environment.jsonl", "timings.jsonl"):  # paths as the repository's, not this machine's
             (dst / name).write_text((src / name).read_text().replace(f"{ROOT}/", ""))
         lines = []
@@ -120,26 +144,26 @@ def collect(arms: list[str]) -> None:
                                          "success": ep["success"],
                                          "distance_m": ep["touchdown_distance_m"]}))
         (dst / "per_start.jsonl").write_text("\n".join(lines) + "\n")
-        gather_environments()
-        print(dst.relative_to(ROOT), len(lines), "starts")
+        gather_environments(rnd)
+        print(rnd.rel(dst), len(lines), "starts")
 
 
-def gather_environments() -> None:
-    """The arms' environment records, each once, in this folder's environment.jsonl (what every
+def gather_environments(rnd: Round) -> None:
+    """The arms' environment records, each once, in the round's environment.jsonl (what every
     committed results folder has), marked with their arm."""
     records = []
-    for arm in ARMS:
-        path = HERE / arm / "environment.jsonl"
+    for arm in rnd.arms:
+        path = rnd.here / arm / "environment.jsonl"
         if path.exists():
             records += [json.dumps({"arm": arm, **json.loads(line)}, sort_keys=True)
                         for line in path.read_text().splitlines() if line.strip()]
-    (HERE / "environment.jsonl").write_text("\n".join(records) + "\n")
+    (rnd.here / "environment.jsonl").write_text("\n".join(records) + "\n")
 
 
-def rates(arm: str) -> dict[tuple[str, int, int], float]:
-    """Validation success (%) per (participant, interactions, replicate)."""
+def rates(folder: Path) -> dict[tuple[str, int, int], float]:
+    """Validation success (%) per (participant, interactions, replicate) of one arm's folder."""
     out = {}
-    for line in (HERE / arm / "results.jsonl").read_text().splitlines():
+    for line in (folder / "results.jsonl").read_text().splitlines():
         r = json.loads(line)
         if r["status"] == "ok":
             t = r["trial"]
@@ -164,46 +188,60 @@ def regressions(r: dict) -> int:  # type: ignore[type-arg]
     return sum(1 for (p, n, s), v in r.items() if n == 20 and (p, 8, s) in r and v < r[(p, 8, s)] - 10)
 
 
-def analyse() -> None:
+def pooled_rates(folders: list[Path], switch: str) -> dict[tuple, float]:  # type: ignore[type-arg]
+    """One switch's rates over both sets and the given rounds' folders, keyed by set and cell."""
+    return {(s, *k): v for folder in folders for s in SETS for k, v in rates(folder / f"{s}-{switch}").items()}
+
+
+def analyse(rnd: Round) -> None:
+    """As PLAN.md fixes it: per switch against the round's base, by set and count, and pooled
+    over both sets (the primary); a later round also pooled with the first (secondary)."""
     summary: dict[str, object] = {}
     rows = ["| switch | set | interactions | cells | CoL % | switch % | difference, points [95 % CI] |",
             "| --- | --- | --- | ---: | ---: | ---: | --- |"]
-    for switch in [w for w in SWITCHES if w != "base"]:
-        missing = [f"{s}-{w}" for s in SETS for w in ("base", switch) if not (HERE / f"{s}-{w}" / "results.jsonl").exists()]
+    for switch in [w for w in ROUND_SWITCHES[rnd.number] if w != "base"]:
+        missing = [f"{s}-{w}" for s in SETS for w in ("base", switch)
+                   if not (rnd.here / f"{s}-{w}" / "results.jsonl").exists()]
         if missing:  # a switch is analysed once both its arms and their bases are in
             summary[f"{switch}/not_run"] = missing
             rows.append(f"| {switch} | not analysed: {', '.join(missing)} not in yet | | | | | |")
             continue
         for set_name in SETS:
-            base, other = rates(f"{set_name}-base"), rates(f"{set_name}-{switch}")
+            base, other = rates(rnd.here / f"{set_name}-base"), rates(rnd.here / f"{set_name}-{switch}")
             for n in (8, 20, None):
                 res = paired(base, other, lambda k, n=n: n is None or k[1] == n)
                 summary[f"{switch}/{set_name}/{n or 'both'}"] = res
                 rows.append(f"| {switch} | {set_name} | {n or '8 and 20'} | {res['cells']} | {res['base_pct']} | "
                             f"{res['switch_pct']} | {res['mean_diff_pts']:+} {res['ci95']} |")
             summary[f"{switch}/{set_name}/regressions"] = {"base": regressions(base), "switch": regressions(other)}
-        pooled_base = {(s, *k): v for s in SETS for k, v in rates(f"{s}-base").items()}
-        pooled = {(s, *k): v for s in SETS for k, v in rates(f"{s}-{switch}").items()}
-        res = paired(pooled_base, pooled, lambda k: True)
+        res = paired(pooled_rates([rnd.here], "base"), pooled_rates([rnd.here], switch), lambda k: True)
         summary[f"{switch}/pooled"] = res
         rows.append(f"| **{switch}** | **both** | 8 and 20 | {res['cells']} | {res['base_pct']} | {res['switch_pct']} | "
                     f"**{res['mean_diff_pts']:+} {res['ci95']}** |")
-    (HERE / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    (HERE / "table.md").write_text("\n".join(rows) + "\n")
+        if rnd.number > 1:
+            both = [Round(n).here for n in range(1, rnd.number + 1)]
+            res = paired(pooled_rates(both, "base"), pooled_rates(both, switch), lambda k: True)
+            summary[f"{switch}/pooled_rounds_1_to_{rnd.number}"] = res
+            rows.append(f"| {switch} | both, rounds 1-{rnd.number} | 8 and 20 | {res['cells']} | {res['base_pct']} | "
+                        f"{res['switch_pct']} | {res['mean_diff_pts']:+} {res['ci95']} |")
+    (rnd.here / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (rnd.here / "table.md").write_text("\n".join(rows) + "\n")
     print("\n".join(rows))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--round", type=int, default=1, choices=sorted(ROUND_SEEDS), help="the ablation's round (default 1)")
     parser.add_argument("step", choices=("configs", "code", "run", "collect", "analyse"))
-    parser.add_argument("arms", nargs="*", help=f"some of {ARMS} (default: all)")
+    parser.add_argument("arms", nargs="*", help="some of the round's arms (default: all)")
     parser.add_argument("--commit", default="HEAD", help="code step: the commit to export")
     args = parser.parse_args()
-    arms = args.arms or ARMS
-    if unknown := [a for a in arms if a not in ARMS]:
-        parser.error(f"unknown arms {unknown}; use some of {ARMS}")
-    {"configs": lambda: configs(), "code": lambda: code(args.commit), "run": lambda: run(arms), "collect": lambda: collect(arms),
-     "analyse": lambda: analyse()}[args.step]()
+    rnd = Round(args.round)
+    arms = args.arms or rnd.arms
+    if unknown := [a for a in arms if a not in rnd.arms]:
+        parser.error(f"unknown arms {unknown}; round {rnd.number} has {rnd.arms}")
+    {"configs": lambda: configs(rnd), "code": lambda: code(rnd, args.commit), "run": lambda: run(rnd, arms),
+     "collect": lambda: collect(rnd, arms), "analyse": lambda: analyse(rnd)}[args.step]()
 
 
 if __name__ == "__main__":
