@@ -25,9 +25,13 @@ class Failsafe:
         self.commander = commander
 
     def check(self, t_s: float) -> None:
-        """One FDM step's checks, at simulation time ``t_s``."""
-        self._offboard_loss(t_s)
-        self._sticks_silent(t_s)
+        """One FDM step's checks, at simulation time ``t_s``: only the modes a check watches call
+        it (this runs in every FDM step of every experiment)."""
+        mode = self.status.mode
+        if mode is Mode.OFFBOARD or mode is Mode.AUTO_LOITER:
+            self._offboard_loss(t_s)
+        elif mode is Mode.POSCTL:
+            self._sticks_silent(t_s)
 
     def _offboard_loss(self, t_s: float) -> None:
         st, params = self.status, self.v.params

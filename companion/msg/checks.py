@@ -8,7 +8,13 @@ import numbers
 
 def finite_real(owner: str, name: str, value: object, hint: str) -> float:
     """``value`` as a float, or a TypeError / ValueError naming ``owner.name`` and saying ``hint``
-    (what the caller should do instead)."""
+    (what the caller should do instead). A plain float or int, the every-step case, skips the
+    abstract-class check (the slow part of this check: it runs several times a control step)."""
+    kind = type(value)
+    if kind is float or kind is int:
+        if not math.isfinite(value):
+            raise ValueError(f"{owner}.{name} is {value}; {hint}")
+        return float(value)
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{owner}.{name} must be a number, got {value!r}")
     if not math.isfinite(value):
