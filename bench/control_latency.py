@@ -41,8 +41,9 @@ from machine_ref import machine_ref_rt
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig, load_companion_config
 from companion.control.arbiter import Phase
+from companion.control.parts import EpisodeParts
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.control.session import EpisodeRunner
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.expert import InterveningExpert
 from companion.learning.policy import PolicyNet, PolicySnapshot

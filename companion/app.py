@@ -29,9 +29,10 @@ from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.ask import HelpAsker
 from companion.control.demo_noise import DemoNoise
+from companion.control.parts import EpisodeControl, EpisodeParts
 from companion.control.precland import PrecisionLander
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeControl, EpisodeParts, EpisodeRunner
+from companion.control.session import EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint

@@ -7,8 +7,9 @@ bring the facts (steps taken, the landed state, the fence's verdict, the simulat
 
 On a vehicle the companion flies, :func:`judge_vehicle` adds what the touchdown assist knows: its
 evidence of a touchdown where the vehicle cannot say, and that a vehicle standing is not below
-the fence. Without a simulator, :func:`score_estimate` scores a touchdown on what the vehicle offers: its
-position relative to home (and its autopilot's truth beside it), with the notes for the record.
+the fence. :func:`score_vehicle` scores an episode on what the vehicle offers: the simulator's
+truth where there is one, else (:func:`score_estimate`) its position relative to home and its
+autopilot's truth beside it, with the notes for the record.
 
 The order of :func:`judge_frame` is the session's: the time limit first (a frame after the last
 step is not looked at), then a touchdown (never on the episode's first frame: the vehicle may
@@ -19,13 +20,15 @@ finite (the driver holds that step instead).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from companion.control.safety import FenceStatus, Geofence
 from companion.control.touchdown import Evidence, TouchdownAssist, touchdown_evidence
+from companion.errors import ColError
 from companion.link.home import HomeFrame
+from companion.link.truth import true_distance_m as truth_distance_m
 from companion.msg.snapshot import VehicleSnapshot
 
 TOUCHDOWN = "touchdown"
@@ -161,3 +164,24 @@ def score_estimate(outcome: str, relative_ned_m: tuple[float, float, float] | No
                      "success judged from the vehicle's reported position (the rendered pad is where it puts it)")
     return score(outcome, simulated=False, estimated_distance_m=estimate, true_distance_m=true_distance_m,
                  judge_radius_m=judge_radius_m), notes
+
+
+def score_vehicle(outcome: str, snap: VehicleSnapshot | None, home: HomeFrame, pad_ned_m: tuple[float, float, float],
+                  *, judge_radius_m: float | None = None,
+                  simulator_truth: Callable[[], Mapping[str, Any]] | None = None) -> tuple[Score, list[str]]:
+    """The one scoring rule on what a vehicle offers, and the record's notes on how: the
+    simulator's touchdown (``simulator_truth``: its control surface's truth query; a failed query
+    is noted and leaves the success unknown), else :func:`score_estimate` on the last snapshot
+    relative to ``home``, the autopilot's truth beside it where it sends one."""
+    if simulator_truth is not None:
+        try:
+            touchdown = simulator_truth().get("touchdown")
+        except ColError as exc:
+            return score(outcome, simulated=True), [f"no ground truth: {exc}"]
+        return score(outcome, simulated=True, touchdown=touchdown), []
+    if snap is None:
+        return score_estimate(outcome, None, pad_ned_m, home_known=home.origin is not None,
+                              judge_radius_m=judge_radius_m)
+    return score_estimate(outcome, home.relative(snap), pad_ned_m, home_known=home.origin is not None,
+                          judge_radius_m=judge_radius_m,
+                          true_distance_m=truth_distance_m(snap, (pad_ned_m[0], pad_ned_m[1])))

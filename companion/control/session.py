@@ -23,16 +23,9 @@ import math
 import sys
 import time
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Protocol
 
-from companion.commands import CommandMapper
-from companion.config import LandingConfig, SessionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.arbiter import Phase
-from companion.control.ask import AskEvent, HelpAsker
-from companion.control.demo_noise import DemoNoise
 from companion.control.episode_start import EpisodeStart
 from companion.control.freshness import FreshnessGate
 from companion.control.gaps import (
@@ -40,78 +33,24 @@ from companion.control.gaps import (
     STALE_TELEMETRY,
     VIDEO_MISSING,
     GapReporter,
-    GapWatcher,
 )
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
-from companion.control.precland import PrecisionLander, fly_precland
+from companion.control.parts import EpisodeParts
+from companion.control.precland import fly_precland
 from companion.control.records import StepView, episode_record, supervised_steps
-from companion.control.safety import Geofence, SetpointLimiter
 from companion.control.sequences import leave_safe
-from companion.control.step import PolicyRunner, StepPipeline
+from companion.control.step import StepPipeline
 from companion.control.touchdown import VehicleTouchdown
 from companion.errors import ColError, LinkLost
-from companion.inputs.base import HumanInput
-from companion.learning.dataset import HumanDataset
-from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect
 from companion.link.home import HomeFrame
-from companion.link.truth import TRUTH_RATE_HZ, true_distance_m
 from companion.msg.command import JoystickCommand
 from companion.msg.episode import EpisodeRecord
 from companion.msg.snapshot import VehicleSnapshot
-from companion.simulator import SimulatorClient
-from companion.vision.observer import Observer
 
 log = logging.getLogger(__name__)
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
-
-
-class EpisodeControl(GapWatcher, Protocol):
-    """An operator's hand on a running session (the console): watches each step and each gap
-    (companion/control/gaps.py) and may end the episode or the run. ``run`` calls
-    ``end_requested`` every step; a reason ends the episode now with that outcome."""
-
-    def on_step(self, view: StepView) -> None: ...
-
-    def end_requested(self) -> str | None: ...
-
-
-@dataclass
-class EpisodeParts:
-    """Everything an episode runner uses; built by the app, replaced by fakes in tests."""
-
-    link: VehicleLink
-    observer: Observer
-    mapper: CommandMapper
-    human: HumanInput
-    fence: Geofence
-    limiter: SetpointLimiter
-    cfg: SessionConfig
-    lockstep: bool
-    simulator: SimulatorClient | None = None
-    runner: PolicyRunner | None = None
-    dataset: HumanDataset | None = None
-    dialect: Dialect | None = None  # None: from the vehicle's HEARTBEAT
-    control: EpisodeControl | None = None
-    asker: HelpAsker | None = None
-    on_ask_event: Callable[[AskEvent], None] | None = None
-    """Told of every request, answer, hand-back (e.g. a console); the session itself logs
-    them, sends them as STATUSTEXT and tells the human input."""
-    landing: LandingConfig | None = None
-    """Touchdowns the vehicle's land detector recognises (None: send what is asked, as is)."""
-    judge_radius_m: float | None = None
-    """Without a simulator: judge success from the vehicle's reported position, within this of
-    the pad (set with a rendered camera, whose pad is where the estimate puts it); None: unknown."""
-    demo_noise: DemoNoise | None = None
-    """Stick noise on the demonstration steps the vehicle flies (companion/control/demo_noise.py,
-    ``[companion.learner] demo_noise_std``); None: the person's sticks as they are."""
-    truth_rate_hz: float = TRUTH_RATE_HZ
-    """How often the autopilot's SITL is asked for its truth: the rendered camera's rate
-    (``[companion.perception] render_rate_hz``), so each frame has a truth of its own."""
-    lander: PrecisionLander | None = None
-    """The autopilot's own precision landing flies each episode after its start, fed with
-    LANDING_TARGET (companion/control/precland.py); None: the person or the policy flies."""
 
 
 class EpisodeRunner:
@@ -329,28 +268,14 @@ class EpisodeRunner:
             raise lost
         return choice.version
 
-    def _score(self, outcome: str, snap: VehicleSnapshot | None, notes: list[str]) -> outcome_rule.Score:
-        """The one scoring rule (companion/control/outcome.py) on what this vehicle offers: the
-        simulator's truth, else the estimate relative to home (and the autopilot's truth)."""
-        if self.p.simulator is not None:
-            try:
-                touchdown = self.p.simulator.truth().get("touchdown")
-            except ColError as exc:
-                notes.append(f"no ground truth: {exc}")
-                touchdown = None
-            return outcome_rule.score(outcome, simulated=True, touchdown=touchdown)
-        pad = self.p.cfg.pad_ned_m
-        result, said = outcome_rule.score_estimate(
-            outcome, self.home.relative(snap) if snap is not None else None, pad,
-            home_known=self.home.origin is not None, judge_radius_m=self.p.judge_radius_m,
-            true_distance_m=true_distance_m(snap, (pad[0], pad[1])) if snap is not None else None)
-        notes.extend(said)
-        return result
-
     def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
                 notes: list[str]) -> EpisodeRecord:
-        result = self._score(outcome, snap, notes)
+        simulator = self.p.simulator
+        result, said = outcome_rule.score_vehicle(outcome, snap, self.home, self.p.cfg.pad_ned_m,
+                                                  judge_radius_m=self.p.judge_radius_m,
+                                                  simulator_truth=simulator.truth if simulator is not None else None)
+        notes.extend(said)
         return episode_record(
             episode, phase, seed, steps, outcome, result, involvement=self.step.arbiter.summary(),
             control_period_s=self.period_s, policy_version=version,

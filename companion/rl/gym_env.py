@@ -35,8 +35,9 @@ from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control import outcome as outcome_rule
 from companion.control.lanes import score_by_truth, start_with_retries
+from companion.control.parts import EpisodeParts
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.control.session import EpisodeRunner
 from companion.errors import ColError, ConfigError
 from companion.inprocess import inprocess_vehicle
 from companion.link import open_link

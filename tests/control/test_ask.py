@@ -19,8 +19,9 @@ from companion.commands import CommandMapper
 from companion.config import AskConfig, CompanionConfig
 from companion.control.arbiter import Phase
 from companion.control.ask import AskAction, AskEvent, HelpAsker, threshold_for
+from companion.control.parts import EpisodeParts
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.control.session import EpisodeRunner
 from companion.inprocess import inprocess_vehicle
 from companion.inputs.base import HelpRequest, HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset

@@ -27,9 +27,11 @@ from companion.control.outcome import (
     judge_vehicle,
     score,
     score_estimate,
+    score_vehicle,
 )
 from companion.control.safety import FenceStatus, Geofence
 from companion.control.touchdown import TouchdownAssist, TouchdownNeed
+from companion.errors import ColError, SimulatorError
 from companion.experiment.batched_eval import evaluate_batched
 from companion.experiment.grid import TrainingRun, load_experiment
 from companion.experiment.runner import evaluate_checkpoint, trial_config
@@ -152,6 +154,24 @@ def test_no_estimate_without_a_touchdown_or_telemetry() -> None:
                           judge_radius_m=0.5) == (Score(success=False), [])
     assert score_estimate(TOUCHDOWN, None, PAD, home_known=True, judge_radius_m=0.5) == (Score(), [])
     assert score_estimate(FENCE, None, PAD, home_known=True) == (Score(), [])
+
+
+def test_a_vehicle_is_scored_by_its_simulator_where_it_has_one_else_by_its_estimate() -> None:
+    home = HomeFrame()
+    touchdown = {"touchdown": {"success": True, "distance_to_pad_m": 0.123456, "speed_m_s": 0.4}}
+    assert score_vehicle(TOUCHDOWN, snapshot_at((4.0, 6.0, -0.1)), home, PAD, judge_radius_m=0.5,
+                         simulator_truth=lambda: touchdown) == (Score(True, 0.1235, 0.4), [])
+
+    def refused() -> dict[str, Any]:
+        raise SimulatorError("control surface timed out")
+
+    result, notes = score_vehicle(TOUCHDOWN, None, home, PAD, simulator_truth=refused)
+    assert result == Score() and notes == ["no ground truth: control surface timed out"]  # unknown, and said
+    assert issubclass(SimulatorError, ColError)
+    result, notes = score_vehicle(TOUCHDOWN, snapshot_at((4.0, 6.0, -0.1)), home, PAD, judge_radius_m=5.5)
+    assert result == Score(True, 5.0, None, None)  # no simulator: the estimate, as score_estimate
+    assert notes[0].startswith("touchdown distance estimated from the vehicle's position")
+    assert score_vehicle(TIMEOUT, None, home, PAD, judge_radius_m=5.5) == (Score(success=False), [])
 
 
 # ----- every driver flies by it ----------------------------------------------------------------

@@ -18,9 +18,10 @@ from colcommon.frames import Frame
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig, LinkConfig
 from companion.control.arbiter import Phase
+from companion.control.parts import EpisodeParts
 from companion.control.precland import PrecisionLander, fly_precland
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.control.session import EpisodeRunner
 from companion.errors import CommandRejected, LinkTimeout
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.link.dialect import ARDUPILOT, PX4

@@ -13,8 +13,9 @@ import pytest
 from companion.commands import CommandMapper
 from companion.config import CompanionConfig
 from companion.control.arbiter import Phase
+from companion.control.parts import EpisodeParts
 from companion.control.safety import Geofence, SetpointLimiter
-from companion.control.session import EpisodeParts, EpisodeRunner
+from companion.control.session import EpisodeRunner
 from companion.errors import LinkLost
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.dataset import HumanDataset
