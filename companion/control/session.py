@@ -218,22 +218,6 @@ class EpisodeRunner:
             return verdict.outcome
         return self.p.control.end_requested() if self.p.control is not None else None
 
-    # ----- one tick at a time, for a caller that chooses every command (the gym env) ----------
-    def begin(self, seed: int | None) -> VehicleSnapshot:
-        """Start an episode as :meth:`run` does (reset or fly to the start, then OFFBOARD) and
-        return its first frame; the caller then answers each frame with :meth:`answer`."""
-        self.step.reset()
-        return self.starter.start(seed)[0]
-
-    def answer(self, command: JoystickCommand | None) -> VehicleSnapshot | None:
-        """Answer the current frame with ``command`` (None: hold), mapped and limited as in
-        :meth:`run`; returns the next frame's telemetry, or None if the link is gone."""
-        if command is None:
-            self.port.send(HOLD)
-        else:
-            self.port.send(self.step.limited(command))
-        return self.port.next_snapshot()
-
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
                       t0_ms: int) -> int | None:
         """One step that flies (judged by _stop_reason before): its policy version."""

@@ -3,9 +3,9 @@
 :class:`LandingLane` is the vehicle port of the batched episode core
 (:class:`~companion.control.lanes.LanePort`) on the SITL's own vehicle, scheduler and renderer,
 driven directly (:mod:`companion.rl.direct_sitl`), with the session's home frame, geofence and
-episode start: the start of :meth:`EpisodeRunner.begin <companion.control.session.EpisodeRunner.begin>`
-on a lockstep SITL with a control surface, step by step: reset; frames (answered with a zero
-setpoint) until the vehicle reports being in the air after it; one zero setpoint and its frame;
+episode start: the start of :class:`~companion.control.episode_start.EpisodeStart` (``LandingEnv``'s
+lane, :class:`~companion.control.link_lane.LinkLane`) on a lockstep SITL with a control surface,
+step by step: reset; frames (answered with a zero setpoint) until the vehicle reports being in the air after it; one zero setpoint and its frame;
 OFFBOARD (asked again after five more frames if refused, three times); the whole start again, up
 to three times, on a link error, as ``LandingEnv`` does. It also keeps what a ``LandingEnv``
 shows a vec env's ``get_attr`` (its seeds, ``action_dims``, ``max_steps``, ...).

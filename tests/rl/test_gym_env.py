@@ -12,7 +12,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from companion.config import CompanionConfig
-from companion.errors import ColError, ConfigError
+from companion.errors import ColError, ConfigError, LinkLost
 from companion.msg.observation import OBS_DIM
 from companion.rl.gym_env import DESCENT_THROTTLE, LandingEnv, stick_values
 
@@ -147,7 +147,11 @@ def test_throttle_and_yaw_are_controlled_with_four_actions(env4_short: LandingEn
 @e2e
 def test_a_missed_frame_truncates_the_episode_without_reward(env2: LandingEnv, monkeypatch: pytest.MonkeyPatch) -> None:
     obs, _ = env2.reset(seed=4)
-    monkeypatch.setattr(env2._runner, "answer", lambda command: None)  # the SITL sends no frame in time
+
+    def no_frame() -> None:
+        raise LinkLost("no frame from the SITL in time")
+
+    monkeypatch.setattr(env2.lane, "next_frame", no_frame)  # the SITL sends no frame in time
     last, reward, terminated, truncated, info = env2.step(np.zeros(2, dtype=np.float32))
     assert truncated and not terminated and reward == 0.0 and info["outcome"] == "link_lost"
     np.testing.assert_array_equal(last, obs)
