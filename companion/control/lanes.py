@@ -12,10 +12,9 @@ for all lanes what the session (companion/control/session.py) does for one:
   companion/control/outcome.py; a lane outside the geofence holds and is asked for its hold mode,
   as the session leaves the fence;
 - :meth:`~EpisodeLanes.observe`: the observation vectors (companion/vision/observation_rows.py),
-  the position relative to home as the session observes it (``from_home``; the RL envs observe
-  the position as reported: the same where home is the origin, as in the paper's configs, and
-  what their trained policies saw elsewhere); a vector that is not finite is not usable: the
-  lane's last good one stands in for it (a policy holds that step instead);
+  the position relative to home as the session observes it, in every driver (the RL envs too);
+  a vector that is not finite is not usable: the lane's last good one stands in for it (a policy
+  holds that step instead);
 - :meth:`~EpisodeLanes.fly`: sticks to setpoints as each lane's session would send them
   (companion/control/setpoint_rows.py; an invalid row through its lane's own mapper, repaired,
   counted and logged), holds sent as they are, then every lane's next frame;
@@ -107,9 +106,8 @@ class EpisodeLanes:
     """Episodes on ``lanes`` side by side (module docstring). Rows are lane indices; every
     lane has begun an episode before it is judged, observed or flown."""
 
-    def __init__(self, cfg: CompanionConfig, lanes: Sequence[LanePort], *, from_home: bool = True) -> None:
+    def __init__(self, cfg: CompanionConfig, lanes: Sequence[LanePort]) -> None:
         self.lanes = list(lanes)
-        self.from_home = from_home
         self.max_steps = cfg.session.max_steps
         self.steps = [0] * len(self.lanes)
         """Frames flown in each lane's episode (the session's ``step``, the rule's steps taken)."""
@@ -156,10 +154,7 @@ class EpisodeLanes:
         if not rows:
             return np.zeros((0, OBS_DIM), dtype=np.float32), np.zeros(0, dtype=bool)
         snaps = [self.snap(i) for i in rows]
-        if self.from_home:
-            telemetry = np.array([telemetry_row(snap, self.lanes[i].home.relative(snap)) for i, snap in zip(rows, snaps)])
-        else:
-            telemetry = np.array([telemetry_row(snap) for snap in snaps])
+        telemetry = np.array([telemetry_row(snap, self.lanes[i].home.relative(snap)) for i, snap in zip(rows, snaps)])
         pads = pad_rows([detect_pad(self._detector, self.lanes[i].image()) for i in rows], self._image_size)
         vectors = normalised(telemetry, pads)
         usable = np.isfinite(vectors).all(axis=1)

@@ -73,7 +73,7 @@ class BatchedLandingEnv(VecEnv):
         self.cfg, self.action_dims, self.descent_throttle = cfg, action_dims, descent_throttle
         sitl_cfg = sitl_config_for(cfg, RunOptions(config_path=config_path))
         self._stack, self.lanes = open_lanes(cfg, sitl_cfg, n_envs, action_dims, descent_throttle)
-        self.core = EpisodeLanes(cfg, self.lanes, from_home=False)  # as LandingEnv observes
+        self.core = EpisodeLanes(cfg, self.lanes)  # the position from home, as the session observes it
         self._rows = list(range(n_envs))
         self._sticks = np.zeros((n_envs, 4))
         self.closed = False

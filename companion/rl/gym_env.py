@@ -94,7 +94,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
         except BaseException:
             self._stack.close()
             raise
-        self.core = EpisodeLanes(self.cfg, [self.lane], from_home=False)  # the position as reported
+        self.core = EpisodeLanes(self.cfg, [self.lane])  # the position from home, as the session observes it
         # The first start after the SITL connects is handed over from real-time pacing and
         # differs slightly from all later ones: fly it once so that every reset(seed) repeats.
         self.core.begin(0, None, attempts=1)
@@ -163,7 +163,7 @@ class LandingEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ----- pieces ----------------------------------------------------------------------------
     def _observe(self) -> np.ndarray:
-        """The 15 values of the latest frame (the position as reported: see EpisodeLanes.observe);
+        """The 15 values of the latest frame (the position from home, as every driver observes it);
         non-finite telemetry repeats the last good ones."""
         vectors, _ = self.core.observe([0])
         return vectors[0].copy()

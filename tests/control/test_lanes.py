@@ -20,7 +20,9 @@ from companion.control.lanes import EpisodeLanes, score_by_truth, start_with_ret
 from companion.control.safety import Geofence, SetpointLimiter
 from companion.errors import LinkError
 from companion.link.home import HomeFrame
+from companion.msg.observation import normalised
 from companion.msg.snapshot import VehicleSnapshot
+from companion.vision.observation_rows import pad_rows, telemetry_row
 
 CFG = CompanionConfig()
 START = VehicleSnapshot(0.0, 1000, 1000, 1, "PX4", True, "OFFBOARD", "IN_AIR", (0.5, -0.5, -4.0), (0.1, 0.0, -0.2),
@@ -66,8 +68,8 @@ class FakeLane:
         return {"touchdown": TRUTH}
 
 
-def _core(*lanes: FakeLane, from_home: bool = True) -> EpisodeLanes:
-    core = EpisodeLanes(CFG, lanes, from_home=from_home)
+def _core(*lanes: FakeLane) -> EpisodeLanes:
+    core = EpisodeLanes(CFG, lanes)
     for i in range(len(lanes)):
         core.begin(i, 100 + i)
     return core
@@ -86,13 +88,13 @@ def test_each_lane_is_judged_by_the_one_rule_and_holds_outside_the_fence() -> No
     assert core.judge([0]) == [outcome.TIMEOUT]
 
 
-def test_observations_from_home_or_as_reported_and_unusable_ones_flagged() -> None:
+def test_observations_from_home_and_unusable_ones_flagged() -> None:
     lane = FakeLane([dataclasses.replace(START, velocity_ned_m_s=(math.nan, 0.0, 0.0))])
     core = _core(lane)
     vectors, usable = core.observe([0])
     assert usable.tolist() == [True]
     from_home = vectors[0].copy()
-    reported, _ = _core(FakeLane(), from_home=False).observe([0])
+    reported = normalised(np.array([telemetry_row(START)]), pad_rows([None], lane.image_size_px))  # as sent
     assert from_home[:2].tolist() == reported[0, :2].tolist() and from_home[2] != reported[0, 2]  # home 0.5 m up
     core.fly(np.zeros((1, 4)))
     vectors, usable = core.observe([0])
