@@ -17,7 +17,10 @@ velocity from the first frame). The pose is, per frame:
 
 Each frame's source is kept (:meth:`RenderedCamera.source_of`) and counted;
 :meth:`RenderedCamera.frame_source_notes` says in the episode record how many frames came from
-each (since the last record: the flight to the start included). Why the companion's own telemetry and
+each (since the last record: the flight to the start included), and, at the frames drawn from
+truth, how far the estimate's picture would have been from the truth's (:class:`EstimateError`:
+the vehicle's place in the pad's world by its estimate against by its truth): what the camera
+drawn from the estimate got wrong. Why the companion's own telemetry and
 not a second MAVLink connection: it needs no second port (ArduCopter SITL sends its telemetry to
 one client), and the frame's age is exact. When telemetry stops (nothing newer for
 ``stale_after_s``) no frame is made: the source reports "no telemetry" and the observation says
@@ -78,6 +81,33 @@ class TrueGround:
         return (pose.north_m, pose.east_m, pose.down_m - (self.down_m or 0.0))
 
 
+class EstimateError:
+    """How far the estimate puts the vehicle from where the truth does, in the pad's world, at
+    each frame drawn from truth (horizontal and vertical, metres), since the last :meth:`note`."""
+
+    KEPT = 100_000  # about an hour of frames at 30 Hz
+
+    def __init__(self) -> None:
+        self.horizontal_m: deque[float] = deque(maxlen=self.KEPT)
+        self.vertical_m: deque[float] = deque(maxlen=self.KEPT)
+
+    def add(self, estimate: Vec3, truth: Vec3) -> None:
+        self.horizontal_m.append(float(np.hypot(estimate[0] - truth[0], estimate[1] - truth[1])))
+        self.vertical_m.append(abs(estimate[2] - truth[2]))
+
+    def note(self, reset: bool = True) -> list[str]:
+        """The record's note (none without a pair); ``reset``: the count starts again."""
+        if not self.horizontal_m:
+            return []
+        h, v = np.asarray(self.horizontal_m), np.asarray(self.vertical_m)
+        if reset:
+            self.horizontal_m.clear()
+            self.vertical_m.clear()
+        return [f"estimate off the truth at {h.size} frames: horizontal median {np.median(h):.3f} m, "
+                f"p95 {np.percentile(h, 95):.3f} m, max {h.max():.3f} m; vertical median {np.median(v):.3f} m, "
+                f"max {v.max():.3f} m"]
+
+
 class RenderedCamera:
     """A :class:`~companion.vision.camera.CameraSource` rendering from a snapshot provider."""
 
@@ -105,6 +135,7 @@ class RenderedCamera:
         self.last_source: PoseSource | None = None
         self.truth_source: str | None = None  # the message the newest truth frame came from
         self.source_counts: Counter[str] = Counter()  # frames per source since the last record's notes
+        self.estimate_error = EstimateError()
         self._sources: OrderedDict[int, PoseSource] = OrderedDict()
         self.no_telemetry: str | None = "no telemetry yet"
         self.render_times_s: list[float] = []
@@ -189,7 +220,7 @@ class RenderedCamera:
             return []
         truth = f" ({self.truth_source})" if counts.get("truth") and self.truth_source else ""
         return [f"rendered camera: {counts.get('truth', 0)} frames from the SITL's truth{truth}, "
-                f"{counts.get('estimate', 0)} from the vehicle's estimate"]
+                f"{counts.get('estimate', 0)} from the vehicle's estimate", *self.estimate_error.note(reset)]
 
     def step(self) -> Frame | None:
         """Render once from the newest truth if fresh, else the newest estimate, unless stale or
@@ -206,7 +237,10 @@ class RenderedCamera:
             self.true_ground.update(snap, truth)
             if truth is self._last_truth:
                 return None
-            return self._publish(lambda: self.render_truth(truth), "truth", truth)
+            frame = self._publish(lambda: self.render_truth(truth), "truth", truth)
+            if frame is not None and snap.position_valid:
+                self.estimate_error.add(self.world_pose(snap)[0], self.true_world_pose(truth)[0])
+            return frame
         if not (snap.position_valid and snap.attitude_valid):
             self._starved("no position and attitude from the vehicle yet")
             return None

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import statistics
 import subprocess
 import sys
@@ -57,6 +58,20 @@ def fly(kind: str, root: Path, work: Path, camera: Path | None, config: Path, ep
     (work / f"{kind}.out").write_text(done.stdout + done.stderr)
     path = run_dir / "episodes.jsonl"
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+ESTIMATE_OFF = re.compile(r"estimate off the truth at (\d+) frames: horizontal median ([\d.]+) m, p95 ([\d.]+) m")
+
+
+def estimate_off(records: list[dict]) -> dict[str, object] | None:
+    """The rendered camera's per-episode notes on how far the estimate was from the truth at the
+    frames drawn from truth: the median over episodes of each episode's median and p95."""
+    found = [m for r in records for note in r.get("notes", []) if (m := ESTIMATE_OFF.search(note))]
+    if not found:
+        return None
+    return {"episodes": len(found), "frames": sum(int(m[1]) for m in found),
+            "horizontal_median_m": round(statistics.median(float(m[2]) for m in found), 3),
+            "horizontal_p95_m": round(statistics.median(float(m[3]) for m in found), 3)}
 
 
 def one(results: dict[str, list[dict]], kind: str, *args: object) -> None:
@@ -103,6 +118,7 @@ def main() -> None:
                             "on_pad": sum(judged) if judged else None,
                             "distance_m_median": round(statistics.median(est), 3) if est else None,
                             "true_distance_m_median": round(statistics.median(true), 3) if true else None,
+                            "estimate_off_truth": estimate_off(records),
                             "outcomes": outcomes})
             lines += [dict(r, repeat=repeat, autopilot=kind) for r in records]
             print(json.dumps(summary[-1]), flush=True)
