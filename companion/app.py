@@ -36,6 +36,7 @@ from companion.control.session import EpisodeRunner
 from companion.errors import ColError, ConfigError, SimulatorError
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.learning.checkpoint import load_checkpoint, save_checkpoint
+from companion.learning.col_plus import COL_PLUS, col_plus_config
 from companion.learning.dataset import HumanDataset, load_csv
 from companion.learning.fit import Fit, fit_of
 from companion.learning.learner import Learner
@@ -62,10 +63,12 @@ if TYPE_CHECKING:
     from sitl.config import CameraConfig
 
 log = logging.getLogger(__name__)
-Condition = Literal["demo", "int", "col", "ask", "eval"]
+Condition = Literal["demo", "int", "col", "colplus", "ask", "eval"]
 PilotKind = Literal["expert", "manual", "gamepad", "none", "precland"]
 PRECLAND = "precland"  # not a person: the autopilot's own precision landing (companion/control/precland.py)
-CONDITIONS = ("demo", "int", "col", "ask", "eval")
+CONDITIONS = ("demo", "int", "col", "colplus", "ask", "eval")
+PERSON_CONDITIONS = ("demo", "int", "col", "colplus")
+"""What a person flies at the console and in a study (asking for help and evaluation aside)."""
 
 
 def phases_for(condition: str, episodes: int) -> list[Phase]:
@@ -74,7 +77,7 @@ def phases_for(condition: str, episodes: int) -> list[Phase]:
         return [Phase.DEMONSTRATION] * episodes
     if condition == "int":
         return [Phase.INTERVENTION] * episodes
-    if condition in ("col", "ask"):  # ask: CoL's schedule, the interventions asked for
+    if condition in ("col", "colplus", "ask"):  # CoL+: CoL with the supported learner switches; ask: asked for
         half = episodes // 2
         return [Phase.DEMONSTRATION] * half + [Phase.INTERVENTION] * (episodes - half)
     if condition == "eval":
@@ -372,7 +375,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
     opts = precland_options(opts)
     episodes = opts.episodes or cfg.session.episodes
     phases = phases_for(opts.condition, episodes)
-    cfg = asking_config(cfg, opts.condition)
+    cfg = condition_config(cfg, opts.condition)
     lockstep = _lockstep_for(opts)
     run_dir = opts.run_dir or default_run_dir(cfg, opts.condition)
     initial = _checked_start(cfg, opts)
@@ -585,6 +588,14 @@ def write_pictures(recorder: FlightRecorder, result: RunResult, cfg: CompanionCo
     except Exception as exc:
         log.warning("could not write episode_%03d.mp4: %r", last, exc)
     return written
+
+
+def condition_config(cfg: CompanionConfig, condition: str) -> CompanionConfig:
+    """The config a condition flies with: CoL+'s learner switches (companion/learning/col_plus.py),
+    asking for help on for ``ask``; the others as given."""
+    if condition == COL_PLUS:
+        return col_plus_config(cfg)
+    return asking_config(cfg, condition)
 
 
 def asking_config(cfg: CompanionConfig, condition: str) -> CompanionConfig:

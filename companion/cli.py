@@ -88,7 +88,7 @@ def fly(
     pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none; or precland: the autopilot's own precision landing on the companion's LANDING_TARGET (no learning; needs \\[sitl.camera] pad_marker = \"aruco\", e.g. --config configs/precland.toml)")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
-    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), ask (half each; the policy holds and asks for help when unsure, needs \\[companion.learner] ensemble_members >= 2), eval (policy alone)")] = "demo",
+    condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), colplus (CoL with the learner switches the ablation supported), ask (half each; the policy holds and asks for help when unsure, needs \\[companion.learner] ensemble_members >= 2), eval (policy alone)")] = "demo",
     config: ConfigOpt = None,
     seed: SeedOpt = None,
     run_dir: RunDirOpt = None,
@@ -307,7 +307,7 @@ def console(
     Serves a page at http://HOST:PORT/ and flies the SITL (started in real time for each run) or
     the vehicle of --connect. The page's gamepad (Xbox layout) or keyboard is the person's input."""
     _setup(verbose)
-    from companion.app import default_run_dir
+    from companion.app import PERSON_CONDITIONS, default_run_dir
     from companion.console.access import allowed_hosts, check_console_exposure
     from companion.console.server import run_console
     from companion.console.session import ConsoleOptions, ConsoleSession
@@ -331,8 +331,9 @@ def console(
         autostart = None
         if start is not None:
             cond, _, count = start.partition(":")
-            if cond not in ("demo", "int", "col") or not count.isdigit() or int(count) < 1:
-                raise typer.BadParameter(f"--start takes CONDITION:EPISODES with demo, int or col, got {start!r}")
+            if cond not in PERSON_CONDITIONS or not count.isdigit() or int(count) < 1:
+                raise typer.BadParameter(f"--start takes CONDITION:EPISODES with one of {', '.join(PERSON_CONDITIONS)}, "
+                                         f"got {start!r}")
             autostart = (cond, int(count))
         opts = ConsoleOptions(run_dir=run_dir or default_run_dir(cfg, "console"), connection=connect, simulator=simulator,
                               config_path=config, camera_rate_hz=camera_rate, seed=seed, learn=learn, pictures=pictures,
@@ -359,12 +360,13 @@ def study(
     interactions: Annotated[int, typer.Option(min=1, max=100, help="episodes per condition block (the grid's interaction count)")] = 8,
     practice: Annotated[int, typer.Option(min=0, max=20, help="practice demonstrations before the first block (not a trial)")] = 2,
     replicate: Annotated[int, typer.Option(min=0, help="the grid replicate whose training starts the trials fly")] = 0,
+    col_plus: Annotated[bool, typer.Option("--col-plus", help="CoL+ as a fourth condition block (a Williams square of four orders)")] = False,
     port: Annotated[int, typer.Option(min=0, max=65535, help="HTTP port on 127.0.0.1 (0: any free port)")] = 8765,
     pictures: PicturesOpt = False,
     verbose: VerboseOpt = False,
 ) -> None:
     """The paper's protocol for a real person through the console (docs/study.md): practice, then
-    Demo, Int and CoL in a counterbalanced order, each a trial written as the grid writes it
+    Demo, Int and CoL (and CoL+ with --col-plus) in a counterbalanced order, each a trial written as the grid writes it
     (its final policy flown alone on the held-out starts), a NASA-TLX after each block."""
     _setup(verbose)
     from companion.console.server import run_console
@@ -376,7 +378,7 @@ def study(
     try:
         path = config or find_config("paper.toml")
         setup = load_experiment(path)
-        folder = StudyFolder(out, StudyPlan(participant, interactions, practice, replicate)).open()
+        folder = StudyFolder(out, StudyPlan(participant, interactions, practice, replicate, col_plus)).open()
         conducted = ConsoleStudy(folder, setup)
         opts = ConsoleOptions(run_dir=out / "practice", config_path=path, pictures=pictures)
 

@@ -26,7 +26,14 @@ from pathlib import Path
 from typing import Any
 
 from colcommon.frames import Frame
-from companion.app import CONDITIONS, RunOptions, RunResult, Vehicle, run_episodes, write_pictures
+from companion.app import (
+    PERSON_CONDITIONS,
+    RunOptions,
+    RunResult,
+    Vehicle,
+    run_episodes,
+    write_pictures,
+)
 from companion.config import CompanionConfig
 from companion.console.frames import FramePump
 from companion.console.study import ConsoleStudy
@@ -172,8 +179,8 @@ class ConsoleSession:
     def start(self, condition: str, episodes: int, auto: bool = False) -> None:
         """Start a run (ConfigError for a bad request or while one runs); ``auto``: no ready
         gate between episodes."""
-        if condition not in CONDITIONS or condition == "eval":
-            raise ConfigError(f"condition must be demo, int or col, got {condition!r}")
+        if condition not in PERSON_CONDITIONS:
+            raise ConfigError(f"condition must be one of {', '.join(PERSON_CONDITIONS)}, got {condition!r}")
         if not isinstance(episodes, int) or isinstance(episodes, bool) or not 1 <= episodes <= 1000:
             raise ConfigError(f"episodes must be a whole number from 1 to 1000, got {episodes!r}")
         with self._lock:
@@ -518,7 +525,7 @@ class ConsoleSession:
             records = list(self.records)
         return {
             "type": "hello",
-            "conditions": ["demo", "int", "col"],
+            "conditions": list(PERSON_CONDITIONS),
             "control_rate_hz": c.session.control_rate_hz,
             "deadband": c.commands.deadband, "expo": c.commands.expo,
             "trigger_threshold": c.pilot.gamepad_trigger_threshold,

@@ -26,10 +26,11 @@ from companion.errors import ConfigError
 from companion.inputs.operator import operator_named
 from companion.inputs.synthetic import PROFILES
 
-TrainCondition = Literal["demo", "int", "col", "ask"]
+TrainCondition = Literal["demo", "int", "col", "colplus", "ask"]
 PAPER_CONDITIONS: tuple[TrainCondition, ...] = ("demo", "int", "col")
-TRAIN_CONDITIONS: tuple[TrainCondition, ...] = (*PAPER_CONDITIONS, "ask")
-"""``ask`` is CoL's schedule with the interventions asked for by the policy (docs/ask-for-help.md)."""
+TRAIN_CONDITIONS: tuple[TrainCondition, ...] = (*PAPER_CONDITIONS, "colplus", "ask")
+"""``colplus`` is CoL with the learner switches the ablation supported (companion/learning/col_plus.py);
+``ask`` is CoL's schedule with the interventions asked for by the policy (docs/ask-for-help.md)."""
 START_SEEDS_PER_REPLICATE = 1000
 """Training starts of replicate ``s`` use seeds ``1000 s, 1000 s + 1, ...`` (never the
 held-out evaluation starts, which begin at ``eval_seed``)."""

@@ -33,9 +33,9 @@ from companion.statistics import (
     t_interval,
 )
 
-LABELS = {"int": "Int", "demo": "Demo", "col": "CoL", "ask": "Ask"}
-ORDER = ("int", "demo", "col", "ask")  # the paper's bar order, then asking for help
-COLOURS = {"int": "#8da0cb", "demo": "#66c2a5", "col": "#fc8d62", "ask": "#e78ac3"}
+LABELS = {"int": "Int", "demo": "Demo", "col": "CoL", "colplus": "CoL+", "ask": "Ask"}
+ORDER = ("int", "demo", "col", "colplus", "ask")  # the paper's bar order, then CoL+ and asking for help
+COLOURS = {"int": "#8da0cb", "demo": "#66c2a5", "col": "#fc8d62", "colplus": "#a6d854", "ask": "#e78ac3"}
 PAPER_COMPLETION_PCT: dict[tuple[str, int], tuple[float, float]] = {
     ("col", 20): (90.25, 5.63), ("demo", 20): (76.25, 2.72),
     ("col", 8): (74.75, 9.38), ("demo", 8): (54.00, 8.95),
@@ -48,7 +48,7 @@ PAPER_DEMO_SAMPLES_20 = PAPER_COL_SAMPLES_20[0] / (1.0 - PAPER_COL_FEWER_SAMPLES
 PAPER_COL_PER_SAMPLE_RATIO = 1.84
 """The paper's summary over all interaction counts: CoL's task completion per human sample
 relative to Demo's (at 20 interactions alone it states 1.90x)."""
-COMPARISONS = (("col", "demo"), ("col", "int"), ("ask", "col"))
+COMPARISONS = (("col", "demo"), ("col", "int"), ("colplus", "col"), ("colplus", "demo"), ("ask", "col"))
 """Paired comparisons in the report: a minus b."""
 CONFIDENCE = 0.95
 REPORT_SEED = 0

@@ -4,7 +4,9 @@ and the study folder that records it exactly as the synthetic grid records its t
 A participant (``S01``, ``S02``, ...) first flies a practice block (demonstrations, not a
 trial), then one block per condition (Demo, Int, CoL) in a counterbalanced order: the six
 orders of a Williams design for three conditions (each condition in each position, and each
-condition after each other one, equally often over six participants). Each condition block is
+condition after each other one, equally often over six participants). With CoL+ as a fourth
+condition (``col_plus``), the four orders of the Williams square for four conditions (the same
+balance over four participants). Each condition block is
 one trial of the grid's shape, ``Trial(participant, condition, interactions, seed)``: trained
 from a fresh random policy on the replicate's training starts, its final policy flown alone on
 the grid's held-out starts, and one line in ``results.jsonl``, so the grid's report and
@@ -33,13 +35,21 @@ CONDITION_ORDERS: tuple[tuple[str, str, str], ...] = (
     ("col", "int", "demo"), ("int", "demo", "col"), ("demo", "col", "int"),
 )
 """Participant n flies ``CONDITION_ORDERS[(n - 1) % 6]``."""
+CONDITION_ORDERS_WITH_COL_PLUS: tuple[tuple[str, ...], ...] = (
+    ("demo", "int", "colplus", "col"), ("int", "col", "demo", "colplus"),
+    ("col", "colplus", "int", "demo"), ("colplus", "demo", "col", "int"),
+)
+"""With CoL+: participant n flies ``CONDITION_ORDERS_WITH_COL_PLUS[(n - 1) % 4]`` (rows of the
+Williams square 1 2 4 3, each next row one on: every condition once in each position and once
+right after each other one)."""
 TLX_SCALES = ("mental", "physical", "temporal", "performance", "effort", "frustration")
 PLAN_FILE, QUESTIONNAIRE_FILE, PRACTICE_DIR = "study.json", "questionnaire.jsonl", "practice"
 
 
-def condition_order(participant: str) -> tuple[str, str, str]:
-    """The participant's counterbalanced order of conditions."""
-    return CONDITION_ORDERS[(participant_number(participant) - 1) % len(CONDITION_ORDERS)]
+def condition_order(participant: str, col_plus: bool = False) -> tuple[str, ...]:
+    """The participant's counterbalanced order of conditions (``col_plus``: CoL+ the fourth)."""
+    orders = CONDITION_ORDERS_WITH_COL_PLUS if col_plus else CONDITION_ORDERS
+    return orders[(participant_number(participant) - 1) % len(orders)]
 
 
 def participant_number(participant: str) -> int:
@@ -71,6 +81,8 @@ class StudyPlan:
     interactions: int
     practice_episodes: int
     seed: int = 0
+    col_plus: bool = False
+    """CoL+ as a fourth condition block."""
 
     def __post_init__(self) -> None:
         participant_number(self.participant)
@@ -82,8 +94,8 @@ class StudyPlan:
             raise ConfigError(f"--seed must be >= 0, got {self.seed}")
 
     @property
-    def order(self) -> tuple[str, str, str]:
-        return condition_order(self.participant)
+    def order(self) -> tuple[str, ...]:
+        return condition_order(self.participant, self.col_plus)
 
     def blocks(self) -> list[Block]:
         practice = [Block("practice", "demo", self.practice_episodes)] if self.practice_episodes else []
@@ -121,6 +133,7 @@ class StudyFolder:
                 theirs = json.loads(path.read_text())
             except json.JSONDecodeError as exc:
                 raise DatasetCorrupt(f"{path} is not JSON ({exc}); move the folder aside") from None
+            theirs.setdefault("col_plus", False)  # a plan written before CoL+ had three conditions
             if {k: theirs.get(k) for k in mine} != mine:
                 raise ConfigError(f"{self.root} holds another study plan ({theirs}); use another --out "
                                   f"for {self.plan.participant} with these settings")

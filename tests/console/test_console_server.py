@@ -57,7 +57,7 @@ async def _scenario(tmp_path: Path) -> None:
         await _files(client)
         first = await client.ws_connect("/ws")
         hello = await _next_of(first, "hello")
-        assert hello["conditions"] == ["demo", "int", "col"] and hello["control_rate_hz"] == 10.5
+        assert hello["conditions"] == ["demo", "int", "col", "colplus"] and hello["control_rate_hz"] == 10.5
         assert hello["status"]["run"]["state"] == "idle" and hello["records"] == []
         assert hello["role"]["role"] == "watch" and hello["role"]["pilot_page"] is None
 

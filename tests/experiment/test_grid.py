@@ -247,6 +247,23 @@ def test_one_tiny_trial_on_the_lockstep_sitl(tmp_path: Path) -> None:
     assert [p.name for p in trial_dir.iterdir() if p.name.startswith("tmp")] == []  # evaluation scratch removed
 
 
+@pytest.mark.e2e
+def test_a_col_plus_trial_is_col_with_the_supported_switches(tmp_path: Path) -> None:
+    """The same cell as CoL, its demonstrations flown with DART's noise: other states, so other
+    samples, on the same schedule; the switch comes from the condition, not the config."""
+    setup = quick_setup(participants=("P1",), conditions=("col", "colplus"), interactions=(2,), eval_runs=1)
+    assert setup.companion.learner.demo_noise_std == 0.0
+    col = run_trial(setup, Trial("P1", "col", 2, 0), tmp_path)
+    plus = run_trial(setup, Trial("P1", "colplus", 2, 0), tmp_path)
+    assert col.status == plus.status == "ok"
+    train = tmp_path / "trials" / "P1-colplus-02-s0" / "train"
+    assert [json.loads(line)["phase"] for line in (train / "episodes.jsonl").read_text().splitlines()] == [
+        "demonstration", "intervention"]
+    col_rows = (tmp_path / "trials" / "P1-col-02-s0" / "train" / "human.csv").read_text().splitlines()
+    plus_rows = (train / "human.csv").read_text().splitlines()
+    assert col_rows[:2] == plus_rows[:2] and col_rows != plus_rows  # the same first sample, then a perturbed flight
+
+
 def _evaluation(path: Path) -> list[dict[str, object]]:
     """Evaluation records without their wall times (the only field that may differ)."""
     return [{k: v for k, v in json.loads(line).items() if k != "wall_time_s"}

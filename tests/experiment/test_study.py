@@ -16,6 +16,7 @@ from companion.experiment.grid import ExperimentSetup, load_experiment
 from companion.experiment.results import TrialResult
 from companion.experiment.study import (
     CONDITION_ORDERS,
+    CONDITION_ORDERS_WITH_COL_PLUS,
     TLX_SCALES,
     StudyFolder,
     StudyPlan,
@@ -35,6 +36,28 @@ def test_the_orders_are_a_williams_design_for_three_conditions() -> None:
     assert set(follows.values()) == {2} and len(follows) == 6  # each after each other one, twice
     assert condition_order("S01") == CONDITION_ORDERS[0] and condition_order("S07") == CONDITION_ORDERS[0]
     assert condition_order("S02") == CONDITION_ORDERS[1]
+
+
+def test_with_col_plus_the_orders_are_a_williams_square_for_four_conditions() -> None:
+    four = ("demo", "int", "col", "colplus")
+    assert all(sorted(o) == sorted(four) for o in CONDITION_ORDERS_WITH_COL_PLUS)
+    for position in range(4):  # each condition once in each position
+        assert Counter(o[position] for o in CONDITION_ORDERS_WITH_COL_PLUS) == dict.fromkeys(four, 1)
+    follows = Counter((o[i], o[i + 1]) for o in CONDITION_ORDERS_WITH_COL_PLUS for i in range(3))
+    assert follows == {pair: 1 for pair in itertools.permutations(four, 2)}  # each right after each other once
+    assert condition_order("S05", col_plus=True) == CONDITION_ORDERS_WITH_COL_PLUS[0]
+    blocks = StudyPlan("S02", 8, 0, col_plus=True).blocks()
+    assert [b.name for b in blocks] == ["S02-int-08-s0", "S02-col-08-s0", "S02-demo-08-s0", "S02-colplus-08-s0"]
+
+
+def test_a_plan_written_before_col_plus_resumes(tmp_path: Path) -> None:
+    folder = StudyFolder(tmp_path / "s01", StudyPlan("S01", 4, 1)).open()
+    plan = json.loads((folder.root / "study.json").read_text())
+    del plan["col_plus"]
+    (folder.root / "study.json").write_text(json.dumps(plan))
+    StudyFolder(tmp_path / "s01", StudyPlan("S01", 4, 1)).open()  # three conditions, as it was written
+    with pytest.raises(ConfigError, match="another study plan"):
+        StudyFolder(tmp_path / "s01", StudyPlan("S01", 4, 1, col_plus=True)).open()
 
 
 @pytest.mark.parametrize("bad", [{"participant": "S00"}, {"participant": "P1"}, {"participant": "s01"},
