@@ -15,12 +15,15 @@ from typing import Any
 
 from companion.errors import CommandRejected, LinkLost, LinkTimeout
 from companion.link.connection import parse_connection
-from companion.link.telemetry import HANDLERS, with_changes
+from companion.link.telemetry import HANDLERS, apply_message, with_changes
 from companion.msg.snapshot import VehicleSnapshot
 
 DIRECT_TELEMETRY = ("LOCAL_POSITION_NED", "ATTITUDE")
 """What the MAVSDK link reads as raw MAVLink (MavlinkDirect) instead of through MAVSDK's
 telemetry plugin, whose position has no stamp and whose attitude stamp is not the message's."""
+DIRECT_TRUTH = ("HIL_STATE_QUATERNION", "SIM_STATE", "GPS_GLOBAL_ORIGIN")
+"""The SITL's truth and the local origin (companion/link/truth.py), read as raw MAVLink: MAVSDK's
+plugins carry neither."""
 AUTOPILOT_COMPONENT = 1  # MAV_COMP_ID_AUTOPILOT1
 
 mavsdk_log = logging.getLogger("mavsdk")
@@ -105,6 +108,28 @@ def fold_direct_telemetry(s: VehicleSnapshot, message: Any) -> VehicleSnapshot:
     if kind == "ATTITUDE":
         changes["frame_time_boot_ms"] = changes["time_boot_ms"]
     return with_changes(s, changes)
+
+
+class _DirectMessage(SimpleNamespace):
+    """A MavlinkDirect message's fields, shaped as a pymavlink message for the shared folding rules."""
+
+    def get_type(self) -> str:
+        return str(self.message_name)
+
+
+def fold_direct_truth(s: VehicleSnapshot, message: Any) -> VehicleSnapshot:
+    """HIL_STATE_QUATERNION, SIM_STATE or GPS_GLOBAL_ORIGIN as MavlinkDirect hands it over,
+    folded by the pymavlink link's own rules (the true pose, the origin); ValueError for a
+    malformed or non-finite one, or one from another component than the autopilot."""
+    if int(message.component_id) != AUTOPILOT_COMPONENT:
+        raise ValueError(f"{message.message_name} from component {message.component_id}, not the autopilot")
+    fields = json.loads(message.fields_json)
+    if not isinstance(fields, dict) or fields.get("message_name") not in DIRECT_TRUTH:
+        raise ValueError(f"not a truth message the link folds: {message.message_name!r}")
+    try:
+        return apply_message(s, _DirectMessage(**fields), time.monotonic(), frame_marker="")
+    except (AttributeError, TypeError) as exc:
+        raise ValueError(f"{fields['message_name']} without its fields: {exc}") from None
 
 
 def fold_flight_mode(s: VehicleSnapshot, mode: Any) -> VehicleSnapshot:

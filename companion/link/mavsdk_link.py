@@ -32,8 +32,11 @@ from companion.link.manual_control import manual_control_from_fields
 from companion.link.mavlink_link import message_id
 from companion.link.mavlink_link import result_name as mav_result_name
 from companion.link.mavsdk_convert import (
+    AUTOPILOT_COMPONENT,
     DIRECT_TELEMETRY,
+    DIRECT_TRUTH,
     fold_direct_telemetry,
+    fold_direct_truth,
     fold_flight_mode,
     fold_landed_state,
     initial_snapshot,
@@ -46,6 +49,7 @@ from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
 MAV_CMD_REQUEST_MESSAGE = 512  # MAVLink common.xml
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
 
 
 class MavsdkLink(VehicleLink):
@@ -150,6 +154,7 @@ class MavsdkLink(VehicleLink):
         direct = self._plugins["direct_telemetry"] = MavlinkDirectAsync(self._system)
         streams: list[tuple[Any, Callable[[VehicleSnapshot, Any], VehicleSnapshot]]] = [
             *((direct.subscribe_message(name), fold_direct_telemetry) for name in DIRECT_TELEMETRY),
+            *((direct.subscribe_message(name), fold_direct_truth) for name in DIRECT_TRUTH),
             (tel.subscribe_armed(), lambda s, v: replace(s, armed=bool(v))),
             (tel.subscribe_flight_mode(), fold_flight_mode),
             (tel.subscribe_landed_state(), fold_landed_state),
@@ -328,8 +333,8 @@ class MavsdkLink(VehicleLink):
             rates_hz = {k: v for k, v in rates_hz.items() if v > 0}
         results: dict[str, str] = {}
         for name, hz in rates_hz.items():
-            if name not in setters:
-                results[name] = "UNSUPPORTED"
+            if name not in setters:  # no plugin streams it: MAV_CMD_SET_MESSAGE_INTERVAL, raw
+                results[name] = self._set_message_interval(name, hz)
                 continue
             try:
                 self._call(f"rate {name}", setters[name][0](float(hz)))
@@ -355,11 +360,7 @@ class MavsdkLink(VehicleLink):
     async def _request_message(
         self, message_name: str, msg_id: int, component_id: int, timeout_s: float
     ) -> dict[str, Any] | None:
-        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
-
-        direct = self._plugins.get("direct_requests")
-        if direct is None:
-            direct = self._plugins["direct_requests"] = MavlinkDirectAsync(self._system)
+        direct = self._direct_requests()
         reply = asyncio.ensure_future(_first_from(direct, message_name, component_id))
         await asyncio.sleep(0)  # let the subscription start before the request goes out
         try:
@@ -373,16 +374,48 @@ class MavsdkLink(VehicleLink):
         finally:
             reply.cancel()
 
+    def _set_message_interval(self, message_name: str, rate_hz: float) -> str:
+        """MAV_CMD_SET_MESSAGE_INTERVAL through MavlinkDirect: the ACK's MAV_RESULT name."""
+        try:
+            msg_id = message_id(message_name)
+        except ValueError:
+            return "UNSUPPORTED"
+        interval_us = 1e6 / rate_hz if rate_hz > 0 else -1.0  # -1: stop the stream
+        timeout_s = self.cfg.command_timeout_s
+        command = self._send_command_long(self._direct_requests(), MAV_CMD_SET_MESSAGE_INTERVAL,
+                                          (float(msg_id), interval_us), AUTOPILOT_COMPONENT, timeout_s)
+        try:
+            return self._runner.run(command, timeout_s + 2.0) or "TIMEOUT"  # type: ignore[union-attr]
+        except TimeoutError:
+            return "TIMEOUT"
+
+    def _direct_requests(self) -> Any:
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+
+        direct = self._plugins.get("direct_requests")
+        if direct is None:
+            direct = self._plugins["direct_requests"] = MavlinkDirectAsync(self._system)
+        return direct
+
     async def _send_request(
         self, direct: Any, msg_id: int, component_id: int, timeout_s: float
     ) -> str | None:
         """COMMAND_LONG REQUEST_MESSAGE; the ACK's MAV_RESULT name, None if none came."""
+        return await self._send_command_long(direct, MAV_CMD_REQUEST_MESSAGE, (float(msg_id),), component_id,
+                                             timeout_s)
+
+    async def _send_command_long(
+        self, direct: Any, command_id: int, params: tuple[float, ...], component_id: int, timeout_s: float
+    ) -> str | None:
+        """One COMMAND_LONG (params from param1; the rest 0); the ACK's MAV_RESULT name, None if
+        none came."""
         from mavsdk.plugins.mavlink_direct import MavlinkDirectError, MavlinkMessage
 
         snapshot = self._require_alive()
+        values = [*params, *([0.0] * (7 - len(params)))]
         fields = {"target_system": snapshot.system_id, "target_component": component_id,
-                  "command": MAV_CMD_REQUEST_MESSAGE, "confirmation": 0, "param1": float(msg_id),
-                  **{f"param{i}": 0.0 for i in range(2, 8)}}  # fmt: skip
+                  "command": command_id, "confirmation": 0,
+                  **{f"param{i + 1}": float(v) for i, v in enumerate(values)}}  # fmt: skip
         command = MavlinkMessage("COMMAND_LONG", self.cfg.source_system, self.cfg.source_component,
                                  snapshot.system_id, component_id, json.dumps(fields))  # fmt: skip
         try:

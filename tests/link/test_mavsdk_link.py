@@ -120,3 +120,23 @@ def test_mavsdk_names_become_px4_and_mavlink_names() -> None:
     assert translate_result("arm", "COMMAND_DENIED").result == "DENIED"
     assert isinstance(translate_result("arm", "TIMEOUT"), LinkTimeout)
     assert isinstance(translate_result("arm", "NO_SYSTEM"), LinkLost)
+
+
+def test_the_sitls_truth_and_origin_reach_the_mavsdk_link_at_the_asked_rate(fake, link) -> None:
+    """MAVSDK's plugins carry no truth: the link asks for it by SET_MESSAGE_INTERVAL and reads
+    HIL_STATE_QUATERNION and GPS_GLOBAL_ORIGIN raw, folded by the pymavlink link's rules."""
+    from tests.link.test_true_pose import PX4_ORIGIN, hil_state, origin_message, quaternion
+
+    results = link.request_rates({"HIL_STATE_QUATERNION": 30.0, "GPS_GLOBAL_ORIGIN": 1.0})
+    assert results == {"HIL_STATE_QUATERNION": "ACCEPTED", "GPS_GLOBAL_ORIGIN": "ACCEPTED"}
+    intervals = fake.requested_intervals_us()
+    assert intervals[mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION] == pytest.approx(1e6 / 30.0)
+    assert intervals[mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN] == pytest.approx(1e6)
+    assert link.request_rates({"NO_SUCH_MESSAGE": 1.0}) == {"NO_SUCH_MESSAGE": "UNSUPPORTED"}
+    hil = hil_state(3.0, -4.0, 5.0, quaternion(0.1, -0.2, 1.0), time_usec=12_345_678)
+    assert _until(lambda: (fake.send_message(origin_message(*PX4_ORIGIN)), fake.send_message(hil),
+                           (s := link.state()) is not None and s.true_pose is not None)[-1])
+    pose = link.state().true_pose
+    assert pose.source == "HIL_STATE_QUATERNION"
+    assert pose.position_ned_m == pytest.approx((3.0, -4.0, -5.0), abs=0.01)
+    assert pose.attitude_rad == pytest.approx((0.1, -0.2, 1.0), abs=1e-6)
