@@ -113,6 +113,13 @@ class WorldConfig(Section):
     vehicle_width_m: float = Field(2.0, gt=0)
     vehicle_height_m: float = Field(1.5, ge=0)
     vehicle_velocity_ne_m_s: tuple[float, float] = (0.0, 0.0)
+    vehicle_turn_rate_rad_s: float = Field(
+        0.0, ge=-1.0, le=1.0, description="the ground vehicle's course turns at this rate (a curve of radius "
+        "speed / rate; + clockwise seen from above); 0: straight on")
+    vehicle_speed_change: float = Field(
+        0.0, ge=0.0, le=1.0, description="its speed swings by this share of itself, sinusoidally over "
+        "vehicle_speed_change_period_s (0.5: between half and one and a half times); 0: steady")
+    vehicle_speed_change_period_s: float = Field(20.0, gt=0, le=600)
     start_height_above_pad_m: float = Field(8.0, gt=0)
     start_xy_range_m: float = Field(3.0, ge=0, description="start x,y uniform in +-range")
     spawn_ne_m: tuple[float, float] = (-6.0, 0.0)

@@ -7,6 +7,8 @@ Pure geometry with no I/O, shared by the dynamics (terrain under the vehicle), t
 
 from __future__ import annotations
 
+import cmath
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +28,24 @@ class Touchdown:
     time_s: float
 
 
-class World:
-    """Ground vehicle and pad kinematics; constant velocity from ``t0_s`` (the last reset).
+def _swept(rate: float, t_s: float) -> complex:
+    """The integral of exp(i rate s) over s from 0 to t_s (t_s itself for a zero rate)."""
+    if abs(rate) < 1e-12:
+        return complex(t_s)
+    return (cmath.exp(1j * rate * t_s) - 1.0) / (1j * rate)
 
-    The velocity is the set one (``vehicle_velocity_ne_m_s`` or :meth:`set_velocity`) plus an
-    episode's drift (:meth:`restart`, the disturbance's random drive; zero by default).
+
+class World:
+    """Ground vehicle and pad kinematics from ``t0_s`` (the last reset).
+
+    The velocity at ``t0_s`` is the set one (``vehicle_velocity_ne_m_s`` or :meth:`set_velocity`)
+    plus an episode's drift (:meth:`restart`, the disturbance's random drive; zero by default).
+    By default it stays so (constant velocity). A driving vehicle as a person sees it turns and
+    changes speed: its course turns at ``vehicle_turn_rate_rad_s`` and its speed swings by the
+    share ``vehicle_speed_change`` over ``vehicle_speed_change_period_s``. With the velocity as
+    a complex number n + i e, v(t) = v0 (1 + a sin(k t)) exp(i w t), whose integral (the position)
+    has a closed form: cheap enough for every FDM step's surface lookup. The box keeps its long
+    side along north (the pad, a disc at its centre, is what the task lands on).
     """
 
     def __init__(self, cfg: WorldConfig) -> None:
@@ -51,7 +66,7 @@ class World:
 
     def set_velocity(self, velocity_ne_m_s: tuple[float, float], t_s: float) -> None:
         """Change the ground vehicle's set velocity from now on (the episode's drift stays added),
-        keeping its position continuous."""
+        keeping its position continuous (its turning and speed changes start again from now)."""
         self.origin_ne = self.position_ne(t_s)
         self.t0_s = t_s
         self.set_velocity_ne = np.asarray(velocity_ne_m_s, dtype=float)
@@ -61,8 +76,27 @@ class World:
         drifting = bool(np.any(self.drift_ne != 0.0))
         self.velocity_ne = self.set_velocity_ne + self.drift_ne if drifting else self.set_velocity_ne
 
+    @property
+    def _curving(self) -> bool:
+        return self.cfg.vehicle_turn_rate_rad_s != 0.0 or self.cfg.vehicle_speed_change != 0.0
+
     def position_ne(self, t_s: float) -> np.ndarray:
-        return self.origin_ne + self.velocity_ne * (t_s - self.t0_s)
+        if not self._curving:  # constant velocity: the committed experiments' arithmetic, as it was
+            return self.origin_ne + self.velocity_ne * (t_s - self.t0_s)
+        tau, w, a = t_s - self.t0_s, self.cfg.vehicle_turn_rate_rad_s, self.cfg.vehicle_speed_change
+        k = 2.0 * math.pi / self.cfg.vehicle_speed_change_period_s
+        swept = _swept(w, tau) + a / 2j * (_swept(w + k, tau) - _swept(w - k, tau))  # sin = (e^ik - e^-ik) / 2i
+        moved = complex(self.velocity_ne[0], self.velocity_ne[1]) * swept
+        return self.origin_ne + np.array([moved.real, moved.imag])
+
+    def velocity_at(self, t_s: float) -> np.ndarray:
+        """The ground vehicle's velocity (north, east) at ``t_s``."""
+        if not self._curving:
+            return self.velocity_ne.copy()
+        tau, w, a = t_s - self.t0_s, self.cfg.vehicle_turn_rate_rad_s, self.cfg.vehicle_speed_change
+        k = 2.0 * math.pi / self.cfg.vehicle_speed_change_period_s
+        v = complex(self.velocity_ne[0], self.velocity_ne[1]) * (1.0 + a * math.sin(k * tau)) * cmath.exp(1j * w * tau)
+        return np.array([v.real, v.imag])
 
     @property
     def roof_height_m(self) -> float:
