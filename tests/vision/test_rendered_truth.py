@@ -3,6 +3,7 @@ estimate when truth is stale or absent, and it says which."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -46,7 +47,9 @@ def test_fresh_truth_is_drawn_with_the_pad_where_the_truth_puts_it_and_says_so()
                                         "0 from the vehicle's estimate",
                                         # the estimate's picture: 0.9 m north, 1.3 m east, 1 m up from the truth's
                                         "estimate off the truth at 1 frames: horizontal median 1.581 m, p95 1.581 m, "
-                                        "max 1.581 m; vertical median 1.000 m, max 1.000 m"]
+                                        "max 1.581 m; vertical median 1.000 m, max 1.000 m; roll/pitch median "
+                                        f"{math.degrees(0.06 - estimate.attitude_rad[1]):.2f} deg, max "
+                                        f"{math.degrees(0.06 - estimate.attitude_rad[1]):.2f} deg"]
     assert cam.frame_source_notes() == []  # counted again from zero for the next episode
 
 
@@ -122,9 +125,9 @@ def test_the_episode_record_says_what_the_rendered_camera_drew_from() -> None:
 def test_the_estimate_error_is_summarised_per_record_and_counted_afresh() -> None:
     errors = EstimateError()
     assert errors.note() == []  # no frame drawn from truth: nothing to say
-    for k in range(20):  # 0.0, 0.1, ... 1.9 m east of the truth, 0.5 m below it
-        errors.add((0.0, 0.1 * k, -4.5), (0.0, 0.0, -5.0))
+    for k in range(20):  # 0.0, 0.1, ... 1.9 m east of the truth, 0.5 m below it, tilted 0.01 rad more in pitch
+        errors.add((0.0, 0.1 * k, -4.5), (0.0, 0.0, -5.0), (0.0, 0.01 * k, 0.3), (0.0, 0.0, -0.3))
     note = errors.note(reset=False)
     assert note == ["estimate off the truth at 20 frames: horizontal median 0.950 m, p95 1.805 m, max 1.900 m; "
-                    "vertical median 0.500 m, max 0.500 m"]
+                    "vertical median 0.500 m, max 0.500 m; roll/pitch median 5.44 deg, max 10.89 deg"]  # yaw left out
     assert errors.note() == note and errors.note() == []
