@@ -309,7 +309,7 @@ def open_rendered_camera(cfg: CompanionConfig, link: VehicleLink, config_path: P
     sitl_cfg = load_sitl_config(config_path)
     pad_n, pad_e, _ = cfg.session.pad_ned_m
     camera = RenderedCamera(link.state, sitl_cfg.camera, sitl_cfg.world, (pad_n, pad_e),
-                            rate_hz=cfg.perception.render_rate_hz)
+                            rate_hz=cfg.perception.render_rate_hz, vehicle_clock=cfg.session.clock == "vehicle")
     camera.open()
     log.info("camera: rendered from the vehicle's telemetry at %.0f Hz, pad at (%.1f, %.1f) of its local frame "
              "on a ground vehicle %.1f m high", cfg.perception.render_rate_hz, pad_n, pad_e, sitl_cfg.world.vehicle_height_m)

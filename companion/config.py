@@ -62,6 +62,9 @@ class SessionConfig(Section):
     """companion.session: the episode loop."""
 
     control_rate_hz: float = Field(10.5, gt=0)
+    clock: Literal["wall", "vehicle"] = Field(
+        "wall", description="real time: steps paced by the wall clock, or by the vehicle's time_boot_ms (an "
+        "autopilot's SITL run faster than real time: PX4_SIM_SPEED_FACTOR, ArduCopter --speedup)")
     max_steps: int = Field(500, gt=0)
     episodes: int = Field(4, gt=0)
     output_dir: str = "runs"

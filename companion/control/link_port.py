@@ -3,8 +3,10 @@ step's telemetry, wait out a lost link.
 
 Two clocks. In lockstep (our SITL) a step is a frame: the port waits for the SITL's frame marker
 and echoes it in the setpoint that answers the frame, so the SITL runs the next frame only then.
-In real time a step is a tick of the control rate (:class:`Ticker`) and the telemetry is the
-newest the link has. Either way each snapshot moves the home frame (companion/link/home.py).
+In real time a step is a tick of the control rate and the telemetry is the newest the link has:
+a tick of the wall clock (:class:`Ticker`, ``[companion.session] clock = "wall"``), or of the
+vehicle's own clock (:class:`VehicleClockTicker`, ``clock = "vehicle"``: an autopilot's SITL run
+faster than real time is flown at the control rate of its own time). Either way each snapshot moves the home frame (companion/link/home.py).
 The batched lanes (companion/rl/landing_lane.py) are the same port on our SITL's objects,
 without the link.
 """
@@ -53,16 +55,51 @@ class Ticker:
         self._last = now
 
 
+class VehicleClockTicker:
+    """Pacing by the vehicle's clock: a step each period of its ``time_boot_ms``, polled every
+    ``poll_s`` of wall time. A vehicle whose clock stands still (a frozen or lost vehicle) is
+    waited for at most ``patience_s`` of wall time, then the step goes ahead: link loss stays the
+    link's wall-clock rule. A late step starts the next period from now (no burst to catch up).
+    ``periods_s`` keeps the vehicle time between steps, for reports."""
+
+    def __init__(self, rate_hz: float, vehicle_ms: Callable[[], int | None], *, poll_s: float = 0.002,
+                 patience_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        self.period_ms = 1000.0 / rate_hz
+        self._vehicle_ms, self._clock, self._sleep = vehicle_ms, clock, sleep
+        self.poll_s, self.patience_s = poll_s, patience_s
+        self._next_ms: float | None = None
+        self._last_ms: int | None = None
+        self.periods_s: list[float] = []
+
+    def wait(self) -> None:
+        now_ms = self._vehicle_ms()
+        if self._next_ms is None:
+            self._next_ms = (now_ms if now_ms is not None else 0) + self.period_ms
+        deadline = self._clock() + self.patience_s
+        while (now_ms is None or now_ms < self._next_ms) and self._clock() < deadline:
+            self._sleep(self.poll_s)
+            now_ms = self._vehicle_ms()
+        if now_ms is None:
+            return
+        late = now_ms >= self._next_ms + self.period_ms
+        self._next_ms = (now_ms if late else self._next_ms) + self.period_ms
+        if self._last_ms is not None:
+            self.periods_s.append((now_ms - self._last_ms) / 1000.0)
+        self._last_ms = now_ms
+
+
 class LinkPort:
     """One vehicle behind a link, stepped at the control rate (module docstring)."""
 
     def __init__(self, link: VehicleLink, lockstep: bool, control_rate_hz: float, home: HomeFrame,
-                 dialect: Dialect | None = None) -> None:
+                 dialect: Dialect | None = None, clock: str = "wall") -> None:
         self.link, self.lockstep, self.home = link, lockstep, home
         self.control_rate_hz = control_rate_hz
+        self.clock = clock
         self.frame_ms = -1
         """Lockstep: the frame being answered (-1: none yet, or the frames start again)."""
-        self._ticker: Ticker | None = None
+        self._ticker: Ticker | VehicleClockTicker | None = None
         self._dialect = dialect
 
     @property
@@ -108,9 +145,14 @@ class LinkPort:
                 self.home.update(snap)
             return snap
         if self._ticker is None:
-            self._ticker = Ticker(self.control_rate_hz)
+            self._ticker = (VehicleClockTicker(self.control_rate_hz, self._vehicle_ms) if self.clock == "vehicle"
+                            else Ticker(self.control_rate_hz))
         self._ticker.wait()
         return self.newest()
+
+    def _vehicle_ms(self) -> int | None:
+        snap = self.link.state()
+        return None if snap is None else int(snap.time_boot_ms)
 
     def newest(self) -> VehicleSnapshot | None:
         """The newest telemetry now, without waiting (None: the link is gone)."""

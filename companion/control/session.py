@@ -68,7 +68,8 @@ class EpisodeRunner:
         self.touchdown = VehicleTouchdown(parts.landing, self.period_s, -parts.cfg.pad_ned_m[2], self.home,
                                           parts.limiter.max_down_m_s, parts.link)
         """Touchdowns the vehicle's land detector recognises (companion/control/touchdown.py)."""
-        self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home, parts.dialect)
+        self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home, parts.dialect,
+                             parts.cfg.clock)
         self.starter = EpisodeStart(self.port, parts, lambda: self.dialect)
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""

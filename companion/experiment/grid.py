@@ -219,6 +219,7 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("link", "signing_key_file"): "",
     ("session", "end_of_run"): "land",
     ("session", "arm_timeout_s"): 60.0,
+    ("session", "clock"): "wall",
     ("perception", "render_rate_hz"): 30.0,
     ("learner", "mirror_augment"): False,
     ("learner", "intervention_weight"): 1.0,

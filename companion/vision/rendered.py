@@ -54,6 +54,7 @@ log = logging.getLogger(__name__)
 RENDER_SCHEME = "render"
 PoseSource = Literal["truth", "estimate"]
 SOURCES_KEPT = 1000  # frame number -> source, for the newest frames
+VEHICLE_CLOCK_POLL_S = 0.002  # by the vehicle's clock: how often the loop looks for a newer pose
 
 
 class TrueGround:
@@ -121,7 +122,7 @@ class RenderedCamera:
 
     def __init__(self, state: Callable[[], VehicleSnapshot | None], camera: CameraConfig, world: WorldConfig,
                  pad_ne_m: tuple[float, float] = (0.0, 0.0), rate_hz: float = 30.0, stale_after_s: float = 0.5,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, vehicle_clock: bool = False) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self._state, self._clock = state, clock
@@ -130,6 +131,10 @@ class RenderedCamera:
         self.pad_ne_m = (float(pad_ne_m[0]), float(pad_ne_m[1]))
         self.success_radius_m = world.success_radius_m
         self.period_s, self.stale_after_s = 1.0 / rate_hz, stale_after_s
+        self.vehicle_clock = vehicle_clock
+        """Frames at ``rate_hz`` of the vehicle's time, not the wall clock's (an autopilot's SITL run
+        faster than real time): the loop polls, and a frame is made once the pose it would show is a
+        period newer than the last frame's."""
         self.home = HomeFrame()
         self.true_ground = TrueGround()
         self._cond = threading.Condition()
@@ -241,7 +246,7 @@ class RenderedCamera:
         truth = self.fresh_truth(snap, now)
         if truth is not None:
             self.true_ground.update(snap, truth)
-            if truth is self._last_truth:
+            if truth is self._last_truth or self._too_soon(truth.time_boot_ms):
                 return None
             frame = self._publish(lambda: self.render_truth(truth), "truth", truth)
             if frame is not None and snap.position_valid:
@@ -254,7 +259,8 @@ class RenderedCamera:
         if now - snap.received_s > self.stale_after_s:
             self._starved(f"no telemetry for {now - snap.received_s:.1f} s")
             return None
-        if snap.time_boot_ms == self._last_rendered_ms and self.last_source == "estimate":
+        if (snap.time_boot_ms == self._last_rendered_ms and self.last_source == "estimate") or self._too_soon(
+                snap.time_boot_ms):
             return None
         return self._publish(lambda: self.render(snap), "estimate", None)
 
@@ -286,6 +292,11 @@ class RenderedCamera:
             self._cond.notify_all()
         return frame
 
+    def _too_soon(self, time_boot_ms: int) -> bool:
+        """By the vehicle's clock: less than a period of its time since the last frame."""
+        last = self._last_rendered_ms
+        return self.vehicle_clock and last is not None and 0 <= time_boot_ms - last < 1000.0 * self.period_s - 0.5
+
     def _starved(self, reason: str) -> None:
         with self._cond:
             if self.no_telemetry is None:
@@ -301,7 +312,7 @@ class RenderedCamera:
                 self.step()
             except Exception:  # a renderer bug must not kill the flight: no frames, logged
                 log.exception("rendered camera failed a frame")
-            next_s += self.period_s
+            next_s += VEHICLE_CLOCK_POLL_S if self.vehicle_clock else self.period_s
             delay = next_s - self._clock()
             if delay <= 0:
                 next_s = self._clock()
