@@ -192,9 +192,11 @@ def _spawn(cmd: list[str], cwd: Path, env: dict[str, str], log_path: Path) -> tu
     return proc, log
 
 
-def start_px4(root: Path, workdir: Path, instance: int | None = None) -> RunningAutopilot:
+def start_px4(root: Path, workdir: Path, instance: int | None = None, speedup: float = 1.0) -> RunningAutopilot:
     """PX4 SITL with SIH (airframe 10040) in ``workdir``; the companion listens on its
-    offboard link, ``udpin:127.0.0.1:14540+instance``. Armable 20-25 s after start."""
+    offboard link, ``udpin:127.0.0.1:14540+instance``. Armable 20-25 s after start (of its own
+    time). ``speedup``: PX4_SIM_SPEED_FACTOR, its lockstep scheduler's speed against the wall
+    clock (fly it with ``[companion.session] clock = "vehicle"``)."""
     inst = free_px4_instance() if instance is None else instance
     workdir.mkdir(parents=True, exist_ok=True)
     run_dir = workdir / "px4"
@@ -202,6 +204,8 @@ def start_px4(root: Path, workdir: Path, instance: int | None = None) -> Running
     bin_dir = px4_bin_dir(root, workdir)
     env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
                PX4_SIM_MODEL="sihsim_quadx", PX4_SIMULATOR="sihsim")
+    if speedup != 1.0:
+        env["PX4_SIM_SPEED_FACTOR"] = f"{speedup:g}"
     log_path = workdir / "px4.log"
     cmd = [str(bin_dir / "px4"), "-d", "-i", str(inst), "-w", str(run_dir), str(root / "px4" / "etc")]
     proc, log = _spawn(cmd, workdir, env, log_path)
@@ -209,28 +213,29 @@ def start_px4(root: Path, workdir: Path, instance: int | None = None) -> Running
 
 
 def start_ardupilot(root: Path, workdir: Path, instance: int | None = None,
-                    port: int | None = None) -> RunningAutopilot:
+                    port: int | None = None, speedup: float = 1.0) -> RunningAutopilot:
     """ArduCopter SITL (built-in quad) in ``workdir`` with a fresh eeprom, sending its first
     serial port to the companion at ``udpin:127.0.0.1:PORT`` (a free port unless given).
-    Armable in GUIDED 25-45 s after start, once its EKF uses GPS."""
+    Armable in GUIDED 25-45 s after start, once its EKF uses GPS. ``speedup``: its --speedup."""
     inst = free_ardupilot_instance() if instance is None else instance
     udp_port = free_udp_port() if port is None else port
     workdir.mkdir(parents=True, exist_ok=True)
     ap = root / "ardupilot"
     log_path = workdir / "arducopter.log"
-    cmd = [str(ap / "arducopter"), "--model", "quad", "--speedup", "1", "--defaults", str(ap / "copter.parm"),
+    cmd = [str(ap / "arducopter"), "--model", "quad", "--speedup", f"{speedup:g}", "--defaults", str(ap / "copter.parm"),
            f"-I{inst}", "-w", "--serial0", f"udpclient:127.0.0.1:{udp_port}"]
     proc, log = _spawn(cmd, workdir, dict(os.environ), log_path)
     return RunningAutopilot("ardupilot", inst, proc, f"udpin:127.0.0.1:{udp_port}", workdir, log_path, log)
 
 
 @contextlib.contextmanager
-def running(kind: Kind, workdir: Path, root: Path | None = None) -> Iterator[RunningAutopilot]:
-    """Start ``kind`` for the block, stop it after (also on errors)."""
+def running(kind: Kind, workdir: Path, root: Path | None = None, speedup: float = 1.0) -> Iterator[RunningAutopilot]:
+    """Start ``kind`` for the block (``speedup`` times real time), stop it after (also on errors)."""
     found, why = (root, "") if root is not None else find_autopilots()
     if found is None:
         raise FileNotFoundError(why)
-    ap = start_px4(found, workdir) if kind == "px4" else start_ardupilot(found, workdir)
+    ap = (start_px4(found, workdir, speedup=speedup) if kind == "px4"
+          else start_ardupilot(found, workdir, speedup=speedup))
     try:
         yield ap
     finally:

@@ -44,8 +44,9 @@ vehicle_height_m = 0.0
 """
 
 
-def fly(kind: str, root: Path, work: Path, camera: Path | None, config: Path, episodes: int) -> list[dict]:
-    ap = (start_px4 if kind == "px4" else start_ardupilot)(root, work / kind)
+def fly(kind: str, root: Path, work: Path, camera: Path | None, config: Path, episodes: int,
+        speedup: float = 1.0) -> list[dict]:
+    ap = (start_px4 if kind == "px4" else start_ardupilot)(root, work / kind, speedup=speedup)
     run_dir = work / f"run-{kind}"
     col = str(Path(sys.executable).with_name("col"))
     try:
@@ -86,6 +87,9 @@ def main() -> None:
     parser.add_argument("--camera", choices=("still", "render"), default="still",
                         help="still: a video of the pad from 1 m; render: the pad world rendered from telemetry")
     parser.add_argument("--autopilots", default="px4,ardupilot")
+    parser.add_argument("--speedup", type=float, default=1.0,
+                        help="the autopilots this many times real time (PX4_SIM_SPEED_FACTOR, --speedup), flown "
+                             "by the vehicle's clock")
     args = parser.parse_args()
     root, why = find_autopilots()
     if root is None:
@@ -94,6 +98,8 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="real-autopilots-"))
     config = work / "config.toml"
     text = CONFIG if args.camera == "still" else RENDER
+    if args.speedup != 1.0:
+        text = text.replace("[companion.session]\n", '[companion.session]\nclock = "vehicle"\n', 1)
     config.write_text(text)
     camera = write_still_pad_video(work / "pad.mp4", height_above_pad_m=1.0, seconds=1200.0) if args.camera == "still" else None
     kinds = tuple(k for k in args.autopilots.split(",") if k)
@@ -102,8 +108,8 @@ def main() -> None:
         results: dict[str, list[dict]] = {}
         rep_dir = work / f"repeat-{repeat}"
 
-        threads = [threading.Thread(target=one, args=(results, k, root, rep_dir, camera, config, args.episodes))
-                   for k in kinds]
+        threads = [threading.Thread(target=one, args=(results, k, root, rep_dir, camera, config, args.episodes,
+                                                      args.speedup)) for k in kinds]
         for t in threads:
             t.start()
         for t in threads:
