@@ -35,7 +35,7 @@ from companion.vision.camera import CameraSource
 MAV_RESULT_FAILED = 4
 
 
-@dataclass(frozen=True)
+@dataclass
 class _StartParts:
     """What the session's episode start reads of its parts (EpisodeStart's StartParts)."""
 

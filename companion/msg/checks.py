@@ -10,8 +10,7 @@ def finite_real(owner: str, name: str, value: object, hint: str) -> float:
     """``value`` as a float, or a TypeError / ValueError naming ``owner.name`` and saying ``hint``
     (what the caller should do instead). A plain float or int, the every-step case, skips the
     abstract-class check (the slow part of this check: it runs several times a control step)."""
-    kind = type(value)
-    if kind is float or kind is int:
+    if isinstance(value, float) or (isinstance(value, int) and not isinstance(value, bool)):
         if not math.isfinite(value):
             raise ValueError(f"{owner}.{name} is {value}; {hint}")
         return float(value)
