@@ -18,11 +18,15 @@ from companion.config import CompanionConfig
 COL_PLUS = "colplus"
 """The condition's name."""
 COL_PLUS_LEARNER: Mapping[str, object] = MappingProxyType({
-    "demo_noise_std": 0.2,  # DART: supported by the ablation's first round (+7.83 points [+0.88, +15.83])
+    "demo_noise_std": 0.2,  # DART: supported in round 1 (+7.83 points [+0.88, +15.83]), held in round 2 (+7.08)
+    "intervention_weight": 2.0,  # the weighting: not shown in round 1, supported in round 2 (+7.12 [+3.75, +11.46])
+    "takeover_steps": 10,
+    "takeover_weight": 4.0,
 })
 """The ``[companion.learner]`` settings CoL+ trains with (module docstring): the switches the
-ablation has supported, at the values it tried; its second round (the mirror and the weighting
-again, results/learner-ablation/PLAN.md amendment 2) may add to them before the preregistration."""
+ablation supported over its two rounds (results/learner-ablation/PLAN.md, amendment 2), at the
+values it tried; the mirror was not shown in either round and stays out. The two together are
+tried on the validation cells before the CoL+ grid is preregistered."""
 
 
 def col_plus_config(cfg: CompanionConfig) -> CompanionConfig:
