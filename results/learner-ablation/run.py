@@ -9,7 +9,9 @@ resumable (`col experiment` resumes a results folder; a finished arm is skipped)
     python results/learner-ablation/run.py analyse            # summary.json and table.md, as PLAN.md says
 
 ``--round 2`` before the step runs the second round instead (PLAN.md, amendment 2): replicates 2
-and 3, the arms of ROUND_SWITCHES[2], everything under round-2/ (here and in runs/).
+and 3, the arms of ROUND_SWITCHES[2], everything under round-2/ (here and in runs/). ``--round 3``
+runs the combination (amendment 3): the ``colplus`` condition (DART with the weighting) on every
+cell of the first two rounds, replicates 0-3, under round-3/, analysed against both rounds' arms.
 
 An arm is SET-SWITCH: SET scripted (P1-P4, the paper's level, configs/paper.toml) or human-like
 (H01-H08, configs/human-like.toml); SWITCH base (every switch off: the paper's CoL) or one switch
@@ -46,10 +48,16 @@ SWITCHES: dict[str, dict[str, object]] = {
 """Each switch's settings, fixed in PLAN.md before the runs (the rest at their defaults)."""
 EXPERIMENT = {"conditions": '["col"]', "interactions": "[8, 20]", "seeds": "[0, 1]",
               "eval_runs": "50", "eval_seed": "600000"}
-ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]"}
+ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]", 3: "[0, 1, 2, 3]"}
 """Each round's replicates: the second (PLAN.md, amendment 2) on cells the first never saw."""
-ROUND_SWITCHES = {1: list(SWITCHES), 2: ["base", "mirror", "weighting", "dart"]}
-"""Each round's arms: the second retries the switches the first did not show, and DART again."""
+ROUND_SWITCHES = {1: list(SWITCHES), 2: ["base", "mirror", "weighting", "dart"], 3: ["colplus"]}
+"""Each round's arms: the second retries the switches the first did not show, and DART again; the
+third is the combination, the ``colplus`` condition (its switches come with the condition,
+companion/learning/col_plus.py, so its arm adds no learner keys)."""
+ROUND_CONDITIONS = {1: '["col"]', 2: '["col"]', 3: '["colplus"]'}
+COMBINATION = "colplus"
+COMBINED_WITH = ("base", "dart", "weighting")
+"""What the combination is compared with (PLAN.md, amendment 3), each pooled over rounds 1 and 2."""
 BOOT_SEED = 0
 
 
@@ -63,7 +71,7 @@ class Round:
         self.runs = RUNS if number == 1 else RUNS / f"round-{number}"
         self.code = self.runs / "code"
         self.arms = [f"{s}-{w}" for s in SETS for w in ROUND_SWITCHES[number]]
-        self.experiment = {**EXPERIMENT, "seeds": ROUND_SEEDS[number]}
+        self.experiment = {**EXPERIMENT, "seeds": ROUND_SEEDS[number], "conditions": ROUND_CONDITIONS[number]}
 
     def rel(self, path: Path) -> str:
         return str(path.relative_to(ROOT))
@@ -83,7 +91,7 @@ def arm_config(arm: str, rnd: Round) -> str:
         text, n = re.subn(rf"^{key} = .*$", f"{key} = {value}", text, count=1, flags=re.M)
         if n != 1:
             raise SystemExit(f"{source}: no '{key} =' line in [experiment]")
-    keys = "".join(f"{k} = {toml_value(v)}\n" for k, v in SWITCHES[switch].items())
+    keys = "".join(f"{k} = {toml_value(v)}\n" for k, v in SWITCHES.get(switch, {}).items())
     text, n = re.subn(r'^\[companion\.learner\]\nmode = "budgeted"\n', lambda m: m.group(0) + keys, text,
                       count=1, flags=re.M)
     if n != 1:
@@ -193,9 +201,48 @@ def pooled_rates(folders: list[Path], switch: str) -> dict[tuple, float]:  # typ
     return {(s, *k): v for folder in folders for s in SETS for k, v in rates(folder / f"{s}-{switch}").items()}
 
 
+def analyse_combination(rnd: Round) -> None:
+    """Amendment 3: the combination against the base, DART alone and the weighting alone, each
+    pooled over the first two rounds' cells (the combination ran on all of them), by set and count
+    as secondaries; then the decision rule's outcome."""
+    earlier = [Round(n).here for n in (1, 2)]
+    plus = pooled_rates([rnd.here], COMBINATION)
+    summary: dict[str, object] = {}
+    rows = ["| against | set | interactions | cells | other % | CoL+ % | CoL+ minus other, points [95 % CI] |",
+            "| --- | --- | --- | ---: | ---: | ---: | --- |"]
+    for other_name in COMBINED_WITH:
+        other = pooled_rates(earlier, other_name)
+        for set_name in (*SETS, None):
+            for n in (8, 20, None):
+                if set_name is None and n is not None:
+                    continue
+                res = paired(other, plus, lambda k, s=set_name, n=n: (s is None or k[0] == s) and (n is None or k[2] == n))
+                key = f"{other_name}/{set_name or 'both'}/{n or 'both'}"
+                summary[key] = res
+                bold = "**" if set_name is None else ""
+                rows.append(f"| {bold}{other_name}{bold} | {set_name or 'both'} | {n or '8 and 20'} | {res['cells']} | "
+                            f"{res['base_pct']} | {res['switch_pct']} | {bold}{res['mean_diff_pts']:+} {res['ci95']}{bold} |")
+    for set_name in SETS:
+        summary[f"regressions/{set_name}"] = {
+            w: regressions({k[1:]: v for k, v in pooled_rates(earlier if w != COMBINATION else [rnd.here], w).items()
+                            if k[0] == set_name})
+            for w in (*COMBINED_WITH, COMBINATION)}
+    base, dart = summary["base/both/both"], summary["dart/both/both"]
+    lower = base["ci95"][0] if base["ci95"] else None  # type: ignore[index]
+    keep = lower is not None and lower > 0 and dart["mean_diff_pts"] >= 0  # type: ignore[index]
+    summary["decision"] = ("CoL+ is the combination (DART with the weighting)" if keep
+                           else "CoL+ is DART alone (the combination failed the rule)")
+    rows.append(f"\nDecision (PLAN.md, amendment 3): {summary['decision']}.")
+    (rnd.here / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (rnd.here / "table.md").write_text("\n".join(rows) + "\n")
+    print("\n".join(rows))
+
+
 def analyse(rnd: Round) -> None:
     """As PLAN.md fixes it: per switch against the round's base, by set and count, and pooled
     over both sets (the primary); a later round also pooled with the first (secondary)."""
+    if COMBINATION in ROUND_SWITCHES[rnd.number]:
+        return analyse_combination(rnd)
     summary: dict[str, object] = {}
     rows = ["| switch | set | interactions | cells | CoL % | switch % | difference, points [95 % CI] |",
             "| --- | --- | --- | ---: | ---: | ---: | --- |"]
