@@ -120,6 +120,10 @@ class WorldConfig(Section):
         0.0, ge=0.0, le=1.0, description="its speed swings by this share of itself, sinusoidally over "
         "vehicle_speed_change_period_s (0.5: between half and one and a half times); 0: steady")
     vehicle_speed_change_period_s: float = Field(20.0, gt=0, le=600)
+    roof_carries: bool = Field(
+        False, description="the roof carries the multirotor as a solid surface does: touchdown friction acts on the "
+        "velocity relative to the roof and a multirotor standing on it drives along, through turns and speed changes "
+        "(JSBSim flies in the roof's frame while over it: docs/sitl.md); false: the roof is a moving height only (as before)")
     start_height_above_pad_m: float = Field(8.0, gt=0)
     start_xy_range_m: float = Field(3.0, ge=0, description="start x,y uniform in +-range")
     spawn_ne_m: tuple[float, float] = (-6.0, 0.0)

@@ -173,11 +173,18 @@ class VehicleLandDetector:
     last step's descent (a bounce is not settling). With the contact rule that contact is
     "landed" too; with PX4's rule :class:`Px4LandDetector` decides, fed the setpoint's commanded
     descent and the thrust asked for.
+
+    ``carried_velocity`` (``[sitl.world] roof_carries``): the velocity of the surface that carries
+    the vehicle now; the settling speed and the touchdown's speed are then relative to it (on the
+    driving roof the vehicle settles at the roof's speed). PX4's rule keeps the world's velocity,
+    which is what PX4's estimator measures on a moving platform.
     """
 
     def __init__(self, status: FlightStatus, px4: Px4LandDetector, px4_rule: bool, world: World,
-                 controller: FlightController, say: Callable[[int, str], None]) -> None:
+                 controller: FlightController, say: Callable[[int, str], None],
+                 carried_velocity: Callable[[], tuple[float, float]] | None = None) -> None:
         self.status = status
+        self.carried_velocity = carried_velocity
         self.px4 = px4
         self.px4_rule = px4_rule
         self.world = world
@@ -206,6 +213,9 @@ class VehicleLandDetector:
         st = self.status
         contact_rule = not self.px4_rule
         vn, ve, vd = s.velocity_ned_m_s
+        if self.carried_velocity is not None:  # relative to the surface that carries it
+            fn, fe = self.carried_velocity()
+            vn, ve = vn - fn, ve - fe
         speed = math.sqrt(vn * vn + ve * ve + vd * vd)
         if s.on_ground and speed < LANDED_SPEED_M_S + 2.0 * abs(self._last_down_speed_m_s):
             if self._airborne and st.touchdown is None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -63,7 +64,7 @@ class SimVehicle:
         self.controller = FlightController(cfg.autopilot, self.dynamics.dt_s)
         self.status = FlightStatus()
         self.land_detector = VehicleLandDetector(self.status, Px4LandDetector(cfg.autopilot), self.land_rule() == "px4",
-                                                 self.world, self.controller, self.say)
+                                                 self.world, self.controller, self.say, self._carried_velocity())
         self.height_offset_m = self.estimator_height_offset_m()
         self.params = ParamStore(autopilot_params(cfg.autopilot))
         self.rng = np.random.default_rng(cfg.world.seed)
@@ -102,9 +103,18 @@ class SimVehicle:
         d = self.disturbance
         ground_asl = TURBULENCE_GROUND_ASL_M if d.turbulence_w20_m_s > 0 else HOME_ALT_M
         dyn = Dynamics(self.cfg.clock.fdm_rate_hz, self.world.surface_height_m,
-                       max_surface_height_m=self.world.roof_height_m, ground_asl_m=ground_asl)
+                       max_surface_height_m=self.world.roof_height_m, ground_asl_m=ground_asl,
+                       carrier=self.world, carries=self.cfg.world.roof_carries)
         dyn.set_atmosphere(d.atmosphere())
         return dyn
+
+    def _carried_velocity(self) -> Callable[[], tuple[float, float]] | None:
+        """With ``roof_carries``, the velocity of the surface that carries the vehicle now, which
+        touchdowns are judged relative to (a vehicle standing on the driving roof is still on it);
+        None: the world's velocity, as before."""
+        if not self.cfg.world.roof_carries:
+            return None
+        return lambda: self.dynamics.carried_velocity_ne_m_s
 
     def _start_disturbance(self) -> None:
         """Per-episode state of the disturbance: the camera's pose history (its latency)."""
