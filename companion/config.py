@@ -221,6 +221,10 @@ class PilotConfig(Section):
     commit_off_centre_m: float = Field(
         0.3, ge=0, description="centred this well below commit_height_m -> set down level"
     )
+    set_down_by_picture: bool = Field(
+        False, description="once committed, a partial pad whose centre is in the picture still steers (off: the "
+                           "remembered position, judged by the vehicle's own position estimate)"
+    )
     search_climb_stick: float = Field(0.3, ge=0, le=1, description="climb while the pad is lost")
     lost_hold_s: float = Field(
         0.5, ge=0, description="pad lost shorter than this -> keep the last command (a blink)"

@@ -87,6 +87,9 @@ def main() -> None:
     parser.add_argument("--camera", choices=("still", "render"), default="still",
                         help="still: a video of the pad from 1 m; render: the pad world rendered from telemetry")
     parser.add_argument("--autopilots", default="px4,ardupilot")
+    parser.add_argument("--set-down-by-picture", action="store_true",
+                        help="[companion.pilot] set_down_by_picture: once committed, the expert still steers by a "
+                             "partial pad whose centre is in the picture (RENDER.md, 2026-12-05)")
     parser.add_argument("--speedup", type=float, default=1.0,
                         help="the autopilots this many times real time (PX4_SIM_SPEED_FACTOR, --speedup), flown "
                              "by the vehicle's clock")
@@ -100,6 +103,8 @@ def main() -> None:
     text = CONFIG if args.camera == "still" else RENDER
     if args.speedup != 1.0:
         text = text.replace("[companion.session]\n", '[companion.session]\nclock = "vehicle"\n', 1)
+    if args.set_down_by_picture:
+        text += "\n[companion.pilot]\nset_down_by_picture = true\n"
     config.write_text(text)
     camera = write_still_pad_video(work / "pad.mp4", height_above_pad_m=1.0, seconds=1200.0) if args.camera == "still" else None
     kinds = tuple(k for k in args.autopilots.split(",") if k)

@@ -49,7 +49,9 @@ def test_fresh_truth_is_drawn_with_the_pad_where_the_truth_puts_it_and_says_so()
                                         "estimate off the truth at 1 frames: horizontal median 1.581 m, p95 1.581 m, "
                                         "max 1.581 m; vertical median 1.000 m, max 1.000 m; roll/pitch median "
                                         f"{math.degrees(0.06 - estimate.attitude_rad[1]):.2f} deg, max "
-                                        f"{math.degrees(0.06 - estimate.attitude_rad[1]):.2f} deg"]
+                                        f"{math.degrees(0.06 - estimate.attitude_rad[1]):.2f} deg; yaw median "
+                                        f"{abs(math.degrees(TRUE_ATTITUDE[2] - estimate.attitude_rad[2])):.2f} deg, max "
+                                        f"{abs(math.degrees(TRUE_ATTITUDE[2] - estimate.attitude_rad[2])):.2f} deg"]
     assert cam.frame_source_notes() == []  # counted again from zero for the next episode
 
 
@@ -129,5 +131,6 @@ def test_the_estimate_error_is_summarised_per_record_and_counted_afresh() -> Non
         errors.add((0.0, 0.1 * k, -4.5), (0.0, 0.0, -5.0), (0.0, 0.01 * k, 0.3), (0.0, 0.0, -0.3))
     note = errors.note(reset=False)
     assert note == ["estimate off the truth at 20 frames: horizontal median 0.950 m, p95 1.805 m, max 1.900 m; "
-                    "vertical median 0.500 m, max 0.500 m; roll/pitch median 5.44 deg, max 10.89 deg"]  # yaw left out
+                    "vertical median 0.500 m, max 0.500 m; roll/pitch median 5.44 deg, max 10.89 deg; "
+                    "yaw median 34.38 deg, max 34.38 deg"]  # 0.3 against -0.3 rad
     assert errors.note() == note and errors.note() == []
