@@ -25,8 +25,9 @@ COL_PLUS_LEARNER: Mapping[str, object] = MappingProxyType({
 })
 """The ``[companion.learner]`` settings CoL+ trains with (module docstring): the switches the
 ablation supported over its two rounds (results/learner-ablation/PLAN.md, amendment 2), at the
-values it tried; the mirror was not shown in either round and stays out. The two together are
-tried on the validation cells before the CoL+ grid is preregistered."""
+values it tried; the mirror was not shown in either round and stays out. Together, on the 96
+validation cells (amendment 3): +11.94 points [+6.88, +17.44] over CoL and +4.48 [+2.19, +7.17]
+over DART alone, so CoL+ is both (results/learner-ablation/round-3/summary.json)."""
 
 
 def col_plus_config(cfg: CompanionConfig) -> CompanionConfig:
