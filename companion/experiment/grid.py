@@ -232,10 +232,12 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("learner", "holdout_check_every_updates"): 100,
     ("learner", "holdout_patience_checks"): 20,
     ("learner", "weight_average_decay"): 0.999,
+    ("pilot", "set_down_by_picture"): False,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's
-own SITL is never left by end_of_run; our SITL arms at once)."""
+own SITL is never left by end_of_run; our SITL arms at once; the expert sets down by its
+remembered position)."""
 
 
 EXPERIMENT_LANDING = LandingConfig(touchdown_assist=False)
