@@ -121,7 +121,21 @@ def verdict(c: dict) -> str:  # type: ignore[type-arg]
     return "not told apart" if ci is None or ci[0] <= 0 <= ci[1] else "better" if ci[0] > 0 else "worse"
 
 
+def gather_environments() -> None:
+    """The grids' environment records, each once, marked with its grid, in environment.jsonl here
+    (what every committed results folder has): written at every call, whole grids or not."""
+    records = []
+    for grid in GRIDS:
+        path = HERE / grid / "environment.jsonl"
+        if path.exists():
+            records += [json.dumps({"grid": grid, **json.loads(line)}, sort_keys=True)
+                        for line in path.read_text().splitlines() if line.strip()]
+    if records:
+        (HERE / "environment.jsonl").write_text("\n".join(records) + "\n")
+
+
 def main() -> None:
+    gather_environments()
     rates = {g: completion(g) for g in GRIDS}
     gaps = {g: missing(g, rates[g]) for g in GRIDS}
     if any(gaps.values()):
