@@ -200,10 +200,14 @@ def test_expert_sets_down_by_a_partial_pad_in_the_picture_when_asked() -> None:
     expert.command(obs(pad_at(0.0, 0.0, 0.9), t_ms=0))
     assert expert.command(obs(PadDetection(-40.0, CY, 60.0, True), t_ms=100)) == JoystickCommand(
         0.0, 0.0, 0.0, -CFG.descent_stick_slow)
-    # nor a stray blob whose centre puts the pad far from where it was (real ArduCopter, 0.13 m
-    # above the pad: a blob at (59, 54) px of radius 68 px, 0.8 m off, steered it away on the ground)
+    # nor a stray blob whose size would put the camera above the commit height (real ArduCopter,
+    # 0.13 m above the pad: a blob at (59, 54) px of radius 68 px, as if from 1.2 m and 0.8 m off,
+    # steered it away on the ground)
     stray = PadDetection(59.0, 54.0, 68.0, True)
     assert expert.command(obs(stray, t_ms=200)) == JoystickCommand(0.0, 0.0, 0.0, -CFG.descent_stick_slow)
+    # but the pad 0.4 m from where it was believed, seen as it is from 0.5 m, is (the estimate drifts)
+    drifted = PadDetection(CX + F_PX * 0.4 / 0.5, CY, F_PX * PAD_RADIUS_M / 0.5, True)
+    assert expert.command(obs(drifted, t_ms=300)).roll > 0
 
 
 def test_expert_always_holds_override() -> None:
