@@ -145,9 +145,10 @@ class ScriptedExpert(HumanInput):
         pitch = self._steer(view.forward_m, vel[0], self._trim[0])
         roll = self._steer(view.right_m, vel[1], self._trim[1])
         descent = self._descent(view)
-        if view.partial and self._commit.committed:  # set down by the picture (by_picture): a partial pad's
-            # radius says little of the height
-            descent = min(descent, self.cfg.descent_stick_slow)
+        if view.partial and self._commit.committed:  # set down by the picture (by_picture): as the set-down
+            # descends, steadily (a partial pad's radius says little of the height; holding off-centre
+            # left PX4 SIH standing unasked on the pad while its height estimate sank below the fence)
+            descent = self.cfg.descent_stick_slow
         self._last_command = JoystickCommand(roll, pitch, 0.0, -descent)
         return self._last_command
 

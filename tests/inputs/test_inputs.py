@@ -184,7 +184,7 @@ def test_expert_commits_to_touchdown_and_ignores_partial_glimpses() -> None:
 def test_expert_sets_down_by_a_partial_pad_in_the_picture_when_asked() -> None:
     """Committed, the pad fills the view: its centre (the dot) 0.2 m ahead is still in the
     picture. The experiment's expert ignores it and keeps to the remembered position; with
-    ``set_down_by_picture`` it steers to it, descending no faster than the slow descent."""
+    ``set_down_by_picture`` it steers to it, descending at the slow descent as the set-down does."""
     partial = PadDetection(CX, CY - F_PX * 0.2 / 0.5, F_PX * PAD_RADIUS_M / 0.5, True)  # 0.5 m above
     for by_picture in (False, True):
         expert = ScriptedExpert(CFG.model_copy(update={"set_down_by_picture": by_picture}))
@@ -192,7 +192,7 @@ def test_expert_sets_down_by_a_partial_pad_in_the_picture_when_asked() -> None:
         cmd = expert.command(obs(partial, t_ms=100))
         if by_picture:
             assert cmd.pitch > 0 and cmd.roll == pytest.approx(0.0)
-            assert -CFG.descent_stick_slow <= cmd.throttle <= 0.0
+            assert cmd.throttle == pytest.approx(-CFG.descent_stick_slow)
         else:
             assert cmd == JoystickCommand(0.0, 0.0, 0.0, -CFG.descent_stick_slow)
     # a sliver whose centre is outside the picture is not believed either way
