@@ -24,6 +24,9 @@ if TYPE_CHECKING:
     from companion.msg.observation import Observation
 
 
+PARTIAL_HEIGHT_MARGIN_M = 0.15  # set_down_by_picture: a pad seen from this much higher is stray
+
+
 def view_of(obs: Observation, cfg: PilotConfig) -> PadEstimate | None:
     """The pad as the pilot judges it from this observation; None when it is not on screen."""
     if obs.pad is None:
@@ -53,10 +56,13 @@ class TouchdownCommit:
 
     ``by_picture`` (``set_down_by_picture``): a partial pad whose centre is in the picture (the
     detector's centre from the white dot or the rim, edge fraction <= 1) is believed too, as a
-    person keeps watching the pad's centre while setting down, unless its size would put the
-    camera above ``commit_height_m`` (a stray blob: on real ArduCopter one seen 0.13 m above the
-    pad, as if from 1.2 m, moved the remembered pad 0.8 m; a gate on such jumps instead also
-    dropped the real pad where the estimate drifted, PX4 SIH 1 of 9). Where the vehicle's position
+    person keeps watching the pad's centre while setting down; and a pad, partial or whole,
+    whose size would put the camera more than ``PARTIAL_HEIGHT_MARGIN_M`` above where the pad
+    last believed was seen from is not (setting down, the camera only comes lower: such a blob
+    is stray; a whole one 10 px across in a corner, 0.1 m above the pad, was seen too; on real ArduCopter one
+    seen 0.07 m above the pad, as if from 0.75 m, moved the remembered pad 0.5 m; a gate on the
+    jump of the pad's position instead also dropped the real pad where the estimate drifted, PX4
+    SIH 1 of 9; results/real-autopilots/RENDER.md). Where the vehicle's position
     estimate drifts from the truth the camera shows (PX4 SIH: its velocity estimate 0.2-0.3 m/s
     off in flight, results/real-autopilots/RENDER.md), the remembered position moves with the
     estimate and the set-down lands off the pad; the picture does not.
@@ -71,6 +77,7 @@ class TouchdownCommit:
     def reset(self) -> None:
         self.committed = False
         self._pad_ne_m = np.zeros(2)
+        self._view_height_m = self.height_m  # the height the pad last believed was seen from
 
     def update(self, view: PadEstimate | None, obs: Observation) -> PadEstimate | None:
         """The view to act on: None for a partial pad once committed."""
@@ -80,15 +87,14 @@ class TouchdownCommit:
             if view.height_m <= self.height_m and view.offset_m <= self.off_centre_m:
                 self.committed = True
                 self._pad_ne_m = self._pad_position(view, obs)
+                self._view_height_m = view.height_m
             return view
-        if view.partial:
-            if not (self.by_picture and view.edge_fraction <= 1.0):
-                return None
-            if view.height_m > self.height_m:
-                return None  # a stray blob, not the pad: committed, the camera is below commit_height_m
-            self._pad_ne_m = self._pad_position(view, obs)
-            return view
+        if view.partial and not (self.by_picture and view.edge_fraction <= 1.0):
+            return None
+        if self.by_picture and view.height_m > self._view_height_m + PARTIAL_HEIGHT_MARGIN_M:
+            return None  # a stray blob, not the pad: setting down, the camera only comes lower
         self._pad_ne_m = self._pad_position(view, obs)
+        self._view_height_m = view.height_m
         return view
 
     def remembered_offset(self, obs: Observation) -> tuple[float, float]:
@@ -145,9 +151,8 @@ class ScriptedExpert(HumanInput):
         pitch = self._steer(view.forward_m, vel[0], self._trim[0])
         roll = self._steer(view.right_m, vel[1], self._trim[1])
         descent = self._descent(view)
-        if view.partial and self._commit.committed:  # set down by the picture (by_picture): as the set-down
-            # descends, steadily (a partial pad's radius says little of the height; holding off-centre
-            # left PX4 SIH standing unasked on the pad while its height estimate sank below the fence)
+        if view.partial and self._commit.committed:  # set down by the picture (by_picture): steadily, as
+            # the blind set-down descends (a partial pad's radius says little of the height)
             descent = self.cfg.descent_stick_slow
         self._last_command = JoystickCommand(roll, pitch, 0.0, -descent)
         return self._last_command

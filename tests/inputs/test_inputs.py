@@ -208,6 +208,12 @@ def test_expert_sets_down_by_a_partial_pad_in_the_picture_when_asked() -> None:
     # but the pad 0.4 m from where it was believed, seen as it is from 0.5 m, is (the estimate drifts)
     drifted = PadDetection(CX + F_PX * 0.4 / 0.5, CY, F_PX * PAD_RADIUS_M / 0.5, True)
     assert expert.command(obs(drifted, t_ms=300)).roll > 0
+    # and lower down a blob as if seen from higher again is stray (real ArduCopter 0.07 m above the
+    # pad: a blob at (74, 123) px of radius 106 px, as if from 0.75 m, steered it away on the ground)
+    low = expert.command(obs(PadDetection(CX + F_PX * 0.1 / 0.3, CY, F_PX * PAD_RADIUS_M / 0.3, True), t_ms=400))
+    assert low.roll > 0
+    assert expert.command(obs(PadDetection(74.0, 123.0, 106.0, True), t_ms=500)).roll > 0  # still to the pad
+    assert expert.command(obs(PadDetection(12.0, 227.0, 10.0, False), t_ms=600)).roll > 0  # a whole one too
 
 
 def test_expert_always_holds_override() -> None:
