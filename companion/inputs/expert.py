@@ -151,9 +151,10 @@ class ScriptedExpert(HumanInput):
         pitch = self._steer(view.forward_m, vel[0], self._trim[0])
         roll = self._steer(view.right_m, vel[1], self._trim[1])
         descent = self._descent(view)
-        if view.partial and self._commit.committed:  # set down by the picture (by_picture): steadily, as
-            # the blind set-down descends (a partial pad's radius says little of the height)
-            descent = self.cfg.descent_stick_slow
+        if view.partial and self._commit.committed:  # a partial pad's radius says little of the height
+            # set down by the picture (by_picture): steadily, as the blind set-down descends; without it
+            # (a partial pad seen as the commit is made) as before, so committed results rerun
+            descent = self.cfg.descent_stick_slow if self._commit.by_picture else min(descent, self.cfg.descent_stick_slow)
         self._last_command = JoystickCommand(roll, pitch, 0.0, -descent)
         return self._last_command
 
