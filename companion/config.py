@@ -225,6 +225,15 @@ class PilotConfig(Section):
         False, description="once committed, a partial pad whose centre is in the picture still steers (off: the "
                            "remembered position, judged by the vehicle's own position estimate)"
     )
+    lead_moving_pad: bool = Field(
+        False, description="follow the pad's own motion, judged from the picture (companion/inputs/pad_motion.py): "
+                           "hold the pad's speed, damp the speed relative to it, and set down where it has driven to "
+                           "(off: as over a still pad)"
+    )
+    lead_stick_per_m_s: float = Field(
+        0.5, ge=0, le=2, description="with lead_moving_pad, the stick held per m/s of the pad's speed: the pilot's "
+                                     "feel for the vehicle, 1 / companion.commands.v_xy_max_m_s"
+    )
     search_climb_stick: float = Field(0.3, ge=0, le=1, description="climb while the pad is lost")
     lost_hold_s: float = Field(
         0.5, ge=0, description="pad lost shorter than this -> keep the last command (a blink)"

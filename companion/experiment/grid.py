@@ -233,6 +233,8 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("learner", "holdout_patience_checks"): 20,
     ("learner", "weight_average_decay"): 0.999,
     ("pilot", "set_down_by_picture"): False,
+    ("pilot", "lead_moving_pad"): False,
+    ("pilot", "lead_stick_per_m_s"): 0.5,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's

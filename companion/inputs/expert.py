@@ -17,6 +17,7 @@ import numpy as np
 
 from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand, HumanInput
+from companion.inputs.pad_motion import PadMotion, heading_frame, pad_ground_position
 from companion.inputs.pad_view import PadEstimate, estimate_pad, heading_velocity
 from companion.msg.command import JoystickCommand
 
@@ -77,6 +78,7 @@ class TouchdownCommit:
     def reset(self) -> None:
         self.committed = False
         self._pad_ne_m = np.zeros(2)
+        self.seen_ms = 0  # vehicle time of the pad's position last believed
         self._view_height_m = self.height_m  # the height the pad last believed was seen from
 
     def update(self, view: PadEstimate | None, obs: Observation) -> PadEstimate | None:
@@ -87,6 +89,7 @@ class TouchdownCommit:
             if view.height_m <= self.height_m and view.offset_m <= self.off_centre_m:
                 self.committed = True
                 self._pad_ne_m = self._pad_position(view, obs)
+                self.seen_ms = int(obs.time_boot_ms)
                 self._view_height_m = view.height_m
             return view
         if view.partial and not (self.by_picture and view.edge_fraction <= 1.0):
@@ -94,22 +97,53 @@ class TouchdownCommit:
         if self.by_picture and view.height_m > self._view_height_m + PARTIAL_HEIGHT_MARGIN_M:
             return None  # a stray blob, not the pad: setting down, the camera only comes lower
         self._pad_ne_m = self._pad_position(view, obs)
+        self.seen_ms = int(obs.time_boot_ms)
         self._view_height_m = view.height_m
         return view
 
-    def remembered_offset(self, obs: Observation) -> tuple[float, float]:
-        """(forward, right) from the vehicle to where the pad was last seen, in metres."""
+    def remembered_offset(self, obs: Observation, driven_ne_m: np.ndarray | None = None) -> tuple[float, float]:
+        """(forward, right) from the vehicle to where the pad was last seen, in metres (moved on by
+        ``driven_ne_m``: how far a moving pad has driven since, :meth:`PadMotion.moved_since`)."""
         n, e, _ = obs.position_ned_m
-        dn, de = self._pad_ne_m[0] - n, self._pad_ne_m[1] - e
+        pad_ne = self._pad_ne_m if driven_ne_m is None else self._pad_ne_m + driven_ne_m
+        dn, de = pad_ne[0] - n, pad_ne[1] - e
         c, s = math.cos(obs.attitude_rad[2]), math.sin(obs.attitude_rad[2])
         return c * dn + s * de, -s * dn + c * de
 
     @staticmethod
     def _pad_position(view: PadEstimate, obs: Observation) -> np.ndarray:
         n, e, _ = obs.position_ned_m
-        c, s = math.cos(obs.attitude_rad[2]), math.sin(obs.attitude_rad[2])
-        fwd, right = view.forward_m, view.right_m
-        return np.array([n + c * fwd - s * right, e + s * fwd + c * right])
+        return pad_ground_position(view.forward_m, view.right_m, (n, e), float(obs.attitude_rad[2]))
+
+
+class PadLead:
+    """What ``lead_moving_pad`` adds to a pilot: the pad's motion, followed from whole sightings.
+
+    ``velocity_fr`` is the pad's velocity in the heading frame; steering then damps the speed
+    relative to it and holds ``lead_stick_per_m_s`` of it as a feed-forward, and a set-down goes
+    to where the pad has driven since it was last believed.
+    """
+
+    def __init__(self, stick_per_m_s: float) -> None:
+        self.stick_per_m_s = stick_per_m_s
+        self.motion = PadMotion()
+
+    def reset(self) -> None:
+        self.motion.reset()
+
+    def see(self, view: PadEstimate | None, obs: Observation) -> None:
+        """Follow the pad from a whole sighting (a partial pad's centre jumps)."""
+        if view is not None and not view.partial:
+            n, e, _ = obs.position_ned_m
+            self.motion.update(pad_ground_position(view.forward_m, view.right_m, (n, e), float(obs.attitude_rad[2])),
+                               int(obs.time_boot_ms))
+
+    def velocity_fr(self, obs: Observation) -> np.ndarray:
+        """The pad's (forward, right) velocity for the vehicle's heading, m/s."""
+        return heading_frame(self.motion.velocity_ne_m_s, float(obs.attitude_rad[2]))
+
+    def driven_since(self, since_ms: int, obs: Observation) -> np.ndarray:
+        return self.motion.moved_since(since_ms, int(obs.time_boot_ms))
 
 
 class ScriptedExpert(HumanInput):
@@ -119,16 +153,21 @@ class ScriptedExpert(HumanInput):
     them for a given vehicle. Memory: a trim that grows while an offset lasts (as a pilot
     leans on the stick against a drift), the last command (a blink of the detector changes
     nothing), and whether it has committed to touchdown (then it sets down where it last saw
-    the pad whole, ignoring partial glimpses).
+    the pad whole, ignoring partial glimpses). With ``lead_moving_pad`` (:class:`PadLead`) also
+    the pad's own motion: speeds are judged relative to the pad, the pad's speed is held as a
+    driver holds a lane's, and the set-down goes where the pad has driven to.
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
         self.cfg = cfg
         self._commit = TouchdownCommit(cfg, by_picture=cfg.set_down_by_picture)
+        self._lead = PadLead(cfg.lead_stick_per_m_s) if cfg.lead_moving_pad else None
         self.reset()
 
     def reset(self) -> None:
         self._commit.reset()
+        if self._lead is not None:
+            self._lead.reset()
         self._last_seen_ms: int | None = None
         self._last_command = JoystickCommand.neutral()
         self._trim = np.zeros(2)  # forward, right; stick units
@@ -142,14 +181,18 @@ class ScriptedExpert(HumanInput):
         vel = heading_velocity(obs.velocity_ned_m_s, yaw_rad)
         now_ms = int(obs.time_boot_ms)
         view = self._commit.update(view_of(obs, self.cfg), obs)
+        lead = np.zeros(2)
+        if self._lead is not None:
+            self._lead.see(view, obs)
+            lead = self._lead.velocity_fr(obs)
         if view is None and self._commit.committed:
-            return self._set_down(obs, vel)
+            return self._set_down(obs, vel, lead)
         if view is None:
-            return self._pad_lost(vel, now_ms)
+            return self._pad_lost(vel, now_ms, lead)
         self._update_trim(view, now_ms)
         self._last_seen_ms = now_ms
-        pitch = self._steer(view.forward_m, vel[0], self._trim[0])
-        roll = self._steer(view.right_m, vel[1], self._trim[1])
+        pitch = self._steer(view.forward_m, vel[0], self._trim[0], lead[0])
+        roll = self._steer(view.right_m, vel[1], self._trim[1], lead[1])
         descent = self._descent(view)
         if view.partial and self._commit.committed:  # a partial pad's radius says little of the height
             # set down by the picture (by_picture): steadily, as the blind set-down descends; without it
@@ -170,10 +213,16 @@ class ScriptedExpert(HumanInput):
         limit = self.cfg.xy_trim_max
         self._trim = np.clip(self._trim + self.cfg.xy_trim_per_m_s * offset * dt_s, -limit, limit)
 
-    def _steer(self, offset_m: float, speed_m_s: float, trim: float) -> float:
+    def _steer(self, offset_m: float, speed_m_s: float, trim: float, lead_m_s: float = 0.0) -> float:
+        """Stick on one axis. Leading a pad that drives at ``lead_m_s``: damp the speed relative
+        to it and hold its speed's stick, steering within ``xy_stick_max`` of that."""
         c = self.cfg
-        demand = c.xy_gain_per_m * offset_m - c.xy_damping_per_m_s * speed_m_s + trim
-        return _stick(demand, c.xy_stick_max)
+        if self._lead is None:
+            demand = c.xy_gain_per_m * offset_m - c.xy_damping_per_m_s * speed_m_s + trim
+            return _stick(demand, c.xy_stick_max)
+        hold = self._lead.stick_per_m_s * lead_m_s
+        demand = c.xy_gain_per_m * offset_m - c.xy_damping_per_m_s * (speed_m_s - lead_m_s) + trim
+        return float(np.clip(hold + _stick(demand, c.xy_stick_max), -1.0, 1.0))
 
     def _descent(self, view: PadEstimate) -> float:
         """Descent stick: fast when high, slow near the pad, less while off-centre."""
@@ -184,20 +233,23 @@ class ScriptedExpert(HumanInput):
         centred = np.clip(2.0 - view.offset_m / allowed_m, 0.0, 1.0)
         return float(rate * centred)
 
-    def _pad_lost(self, vel: np.ndarray, now_ms: int) -> JoystickCommand:
-        """A blink: carry on. Longer: brake (keeping the trim) and climb to see more."""
+    def _pad_lost(self, vel: np.ndarray, now_ms: int, lead: np.ndarray) -> JoystickCommand:
+        """A blink: carry on. Longer: brake (keeping the trim; leading, to the pad's speed) and
+        climb to see more."""
         seen = self._last_seen_ms
         if seen is not None and now_ms - seen < self.cfg.lost_hold_s * 1000.0:
             return self._last_command
-        pitch = self._steer(0.0, vel[0], self._trim[0])
-        roll = self._steer(0.0, vel[1], self._trim[1])
+        pitch = self._steer(0.0, vel[0], self._trim[0], lead[0])
+        roll = self._steer(0.0, vel[1], self._trim[1], lead[1])
         return JoystickCommand(roll, pitch, 0.0, self.cfg.search_climb_stick)
 
-    def _set_down(self, obs: Observation, vel: np.ndarray) -> JoystickCommand:
-        """Committed, pad not seen whole: steer to where it was, descend slowly."""
-        forward_m, right_m = self._commit.remembered_offset(obs)
-        pitch = self._steer(forward_m, vel[0], self._trim[0])
-        roll = self._steer(right_m, vel[1], self._trim[1])
+    def _set_down(self, obs: Observation, vel: np.ndarray, lead: np.ndarray) -> JoystickCommand:
+        """Committed, pad not seen whole: steer to where it was (leading: to where it has driven
+        to since), descend slowly."""
+        driven = None if self._lead is None else self._lead.driven_since(self._commit.seen_ms, obs)
+        forward_m, right_m = self._commit.remembered_offset(obs, driven)
+        pitch = self._steer(forward_m, vel[0], self._trim[0], lead[0])
+        roll = self._steer(right_m, vel[1], self._trim[1], lead[1])
         return JoystickCommand(roll, pitch, 0.0, -self.cfg.descent_stick_slow)
 
 
@@ -268,7 +320,9 @@ class InterventionRule:
     lower than at the take-over, pad within ``release_edge_fraction`` and, when low, within
     ``release_off_centre_m`` (tighter than the take-over thresholds, so the rule does not
     chatter). Nobody hands back control while setting the vehicle down: once committed, the
-    expert keeps the sticks until touchdown.
+    expert keeps the sticks until touchdown. With ``lead_moving_pad`` (:class:`PadLead`) the
+    speeds that warn (sliding, the projected miss) are relative to the pad, and the remembered
+    pad drives on.
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
@@ -281,12 +335,15 @@ class InterventionRule:
         self._takeover_down_m = 0.0
         self._last_seen_ms: int | None = None
         self._commit = TouchdownCommit(self.cfg)
+        self._lead = PadLead(self.cfg.lead_stick_per_m_s) if self.cfg.lead_moving_pad else None
         self._progress = ProgressWatch(self.cfg.takeover_stall_s, self.cfg.takeover_stall_descent_m)
         self.takeovers = 0
 
     def update(self, obs: Observation) -> RuleState:
         """Advance the rule by one observation."""
         view = self._commit.update(view_of(obs, self.cfg), obs)
+        if self._lead is not None:
+            self._lead.see(view, obs)
         if obs.pad is not None:
             self._last_seen_ms = int(obs.time_boot_ms)
         stalled = self._progress.stalled(obs)
@@ -328,10 +385,13 @@ class InterventionRule:
             return "descending too fast"
         if view is not None and view.height_m < c.takeover_low_height_m and vd > c.takeover_low_descent_m_s:
             return "descending too fast near the ground"
+        if self._lead is not None:  # speeds relative to the pad
+            vn, ve = np.array([vn, ve]) - self._lead.motion.velocity_ne_m_s
         if view is None and self._commit.committed:
             if math.hypot(vn, ve) > c.takeover_touchdown_speed_m_s:
                 return "sliding sideways at touchdown"
-            if math.hypot(*self._commit.remembered_offset(obs)) > c.takeover_off_centre_m:
+            driven = None if self._lead is None else self._lead.driven_since(self._commit.seen_ms, obs)
+            if math.hypot(*self._commit.remembered_offset(obs, driven)) > c.takeover_off_centre_m:
                 return "drifting off the pad at touchdown"
             return None  # right above the pad: a glimpse of its rim says little
         if view is None:
@@ -342,7 +402,7 @@ class InterventionRule:
             return "pad near the image edge"
         if view.height_m < c.takeover_low_height_m and view.offset_m > c.takeover_off_centre_m:
             return "off-centre at low height"
-        miss_m = projected_miss_m(view, heading_velocity(obs.velocity_ned_m_s, float(obs.attitude_rad[2])),
+        miss_m = projected_miss_m(view, heading_velocity((float(vn), float(ve), vd), float(obs.attitude_rad[2])),
                                   vd, c.anticipation_s)
         if c.takeover_predicted_miss_m > 0 and miss_m is not None and miss_m > c.takeover_predicted_miss_m:
             return "heading for a miss"

@@ -46,6 +46,8 @@ CONFIG = """
 [sitl.world]
 vehicle_velocity_ne_m_s = [{speed}, 0.0]
 roof_carries = {carries}
+vehicle_turn_rate_rad_s = {turn}
+vehicle_speed_change = {change}
 
 [sitl.autopilot]
 land_detector = "contact"
@@ -159,16 +161,32 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=100000)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--speeds", type=lambda t: tuple(float(v) for v in t.split(",")), default=SPEEDS_M_S,
+                        help="pad speeds, m/s, comma-separated (default: 1.0,1.5)")
+    parser.add_argument("--carries", choices=("both", "on"), default="both",
+                        help="roof_carries off and on, or on only")
+    parser.add_argument("--pilots", choices=("both", "expert"), default="both")
+    parser.add_argument("--turn-rate", type=float, default=0.0,
+                        help="[sitl.world] vehicle_turn_rate_rad_s: the pad's vehicle drives a curve")
+    parser.add_argument("--speed-change", type=float, default=0.0,
+                        help="[sitl.world] vehicle_speed_change: its speed swings by this share (period 20 s)")
+    parser.add_argument("--lead-moving-pad", action="store_true",
+                        help="[companion.pilot] lead_moving_pad = true: the expert follows the pad's motion")
     args = parser.parse_args()
     inprocess.InProcessSitl = WatchedSitl  # type: ignore[misc]
     append_record(args.out.parent, command=sys.argv)  # the numeric environment and the code's commit
     with args.out.open("w") as out, tempfile.TemporaryDirectory(prefix="roof-carry-") as tmp:
-        for speed in SPEEDS_M_S:
-            for carries in (False, True):
+        for speed in args.speeds:
+            for carries in (False, True) if args.carries == "both" else (True,):
                 config = Path(tmp) / f"{speed}-{carries}.toml"
-                config.write_text(CONFIG.format(speed=speed, carries=str(carries).lower()))
-                lines = [fly_tracker(config, speed, carries, args.seed + k) for k in range(args.episodes)]
-                lines += fly_expert(config, speed, carries, args.episodes, args.seed)
+                config.write_text(CONFIG.format(speed=speed, carries=str(carries).lower(), turn=args.turn_rate,
+                                                change=args.speed_change)
+                                  + ("\n[companion.pilot]\nlead_moving_pad = true\n" if args.lead_moving_pad else ""))
+                lines = [] if args.pilots == "expert" else [
+                    fly_tracker(config, speed, carries, args.seed + k) for k in range(args.episodes)]
+                lines += [dict(line, lead_moving_pad=args.lead_moving_pad, turn_rate_rad_s=args.turn_rate,
+                               speed_change=args.speed_change)
+                          for line in fly_expert(config, speed, carries, args.episodes, args.seed)]
                 for line in lines:
                     out.write(json.dumps(line) + "\n")
                 out.flush()
