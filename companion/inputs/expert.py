@@ -131,16 +131,18 @@ class PadLead:
     def reset(self) -> None:
         self.motion.reset()
 
-    def see(self, view: PadEstimate | None, obs: Observation) -> None:
-        """Follow the pad from a whole sighting (a partial pad's centre jumps)."""
-        if view is not None and not view.partial:
+    def see(self, view: PadEstimate | None, obs: Observation, committed: bool) -> None:
+        """Follow the pad from a whole sighting, and once committed from a partial one the commit
+        believes (``set_down_by_picture``: its centre in the picture); before, a partial pad is at
+        the picture's edge and its centre jumps."""
+        if view is not None and (not view.partial or committed):
             n, e, _ = obs.position_ned_m
             self.motion.update(pad_ground_position(view.forward_m, view.right_m, (n, e), float(obs.attitude_rad[2])),
                                int(obs.time_boot_ms))
 
     def velocity_fr(self, obs: Observation) -> np.ndarray:
         """The pad's (forward, right) velocity for the vehicle's heading, m/s."""
-        return heading_frame(self.motion.velocity_ne_m_s, float(obs.attitude_rad[2]))
+        return heading_frame(self.motion.velocity_ne_at(int(obs.time_boot_ms)), float(obs.attitude_rad[2]))
 
     def driven_since(self, since_ms: int, obs: Observation) -> np.ndarray:
         return self.motion.moved_since(since_ms, int(obs.time_boot_ms))
@@ -183,7 +185,7 @@ class ScriptedExpert(HumanInput):
         view = self._commit.update(view_of(obs, self.cfg), obs)
         lead = np.zeros(2)
         if self._lead is not None:
-            self._lead.see(view, obs)
+            self._lead.see(view, obs, self._commit.committed)
             lead = self._lead.velocity_fr(obs)
         if view is None and self._commit.committed:
             return self._set_down(obs, vel, lead)
@@ -343,7 +345,7 @@ class InterventionRule:
         """Advance the rule by one observation."""
         view = self._commit.update(view_of(obs, self.cfg), obs)
         if self._lead is not None:
-            self._lead.see(view, obs)
+            self._lead.see(view, obs, self._commit.committed)
         if obs.pad is not None:
             self._last_seen_ms = int(obs.time_boot_ms)
         stalled = self._progress.stalled(obs)
@@ -386,7 +388,7 @@ class InterventionRule:
         if view is not None and view.height_m < c.takeover_low_height_m and vd > c.takeover_low_descent_m_s:
             return "descending too fast near the ground"
         if self._lead is not None:  # speeds relative to the pad
-            vn, ve = np.array([vn, ve]) - self._lead.motion.velocity_ne_m_s
+            vn, ve = np.array([vn, ve]) - self._lead.motion.velocity_ne_at(int(obs.time_boot_ms))
         if view is None and self._commit.committed:
             if math.hypot(vn, ve) > c.takeover_touchdown_speed_m_s:
                 return "sliding sideways at touchdown"

@@ -156,6 +156,12 @@ def track(v: SimVehicle) -> TargetFields:
                         0.7 if over else 0.0, 0.0, 0.0)
 
 
+def pilot_table(lead: bool, by_picture: bool) -> str:
+    """The [companion.pilot] keys the expert flies with (empty: the experiment's expert)."""
+    keys = ["lead_moving_pad = true"] * lead + ["set_down_by_picture = true"] * by_picture
+    return "\n[companion.pilot]\n" + "\n".join(keys) + "\n" if keys else ""
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=10)
@@ -172,6 +178,8 @@ def main() -> None:
                         help="[sitl.world] vehicle_speed_change: its speed swings by this share (period 20 s)")
     parser.add_argument("--lead-moving-pad", action="store_true",
                         help="[companion.pilot] lead_moving_pad = true: the expert follows the pad's motion")
+    parser.add_argument("--set-down-by-picture", action="store_true",
+                        help="[companion.pilot] set_down_by_picture = true: the expert steers by a partial pad too")
     args = parser.parse_args()
     inprocess.InProcessSitl = WatchedSitl  # type: ignore[misc]
     append_record(args.out.parent, command=sys.argv)  # the numeric environment and the code's commit
@@ -181,10 +189,11 @@ def main() -> None:
                 config = Path(tmp) / f"{speed}-{carries}.toml"
                 config.write_text(CONFIG.format(speed=speed, carries=str(carries).lower(), turn=args.turn_rate,
                                                 change=args.speed_change)
-                                  + ("\n[companion.pilot]\nlead_moving_pad = true\n" if args.lead_moving_pad else ""))
+                                  + pilot_table(args.lead_moving_pad, args.set_down_by_picture))
                 lines = [] if args.pilots == "expert" else [
                     fly_tracker(config, speed, carries, args.seed + k) for k in range(args.episodes)]
                 lines += [dict(line, lead_moving_pad=args.lead_moving_pad, turn_rate_rad_s=args.turn_rate,
+                               set_down_by_picture=args.set_down_by_picture,
                                speed_change=args.speed_change)
                           for line in fly_expert(config, speed, carries, args.episodes, args.seed)]
                 for line in lines:
