@@ -39,6 +39,8 @@ from typing import Any
 
 import tomllib
 
+from colcommon.logged_run import run_logged
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 EPISODES = HERE / "episodes"
@@ -287,11 +289,7 @@ def kept_path(name: str, episodes: int, runs: Path) -> Path:
 
 
 def _run(cmd: list[str], log: Path) -> None:
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("w") as out:
-        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=ROOT)
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}); see {log}")
+    run_logged(cmd, log, ROOT)
 
 
 def _keep(source: Path, kept: Path) -> None:

@@ -27,6 +27,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from colcommon.logged_run import run_logged
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 RUNS = ROOT / "runs" / "precland-compare"
@@ -85,11 +87,7 @@ def write_configs() -> None:
 
 
 def _run(cmd: list[str], log: Path) -> None:
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("w") as out:
-        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, cwd=ROOT)
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}); see {log}")
+    run_logged(cmd, log, ROOT)
 
 
 def _keep(run_dir: Path, name: str) -> None:
