@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from companion.learning.snapshot import Normalisation, PolicySnapshot, _frozen_f32
-from companion.learning.trainer import RmsPropState, forward_into, root_weights
+from companion.learning.trainer import TrainerStep
 
 F32 = np.float32
 DEFAULT_MEMBERS = 5
@@ -134,7 +134,7 @@ def disagreement(snapshot: PolicySnapshot, obs_vector: np.ndarray) -> tuple[np.n
     return snapshot.act(obs_vector), math.nan
 
 
-class EnsembleTrainer(RmsPropState):
+class EnsembleTrainer(TrainerStep):
     """K MLPs + their RMSprop states as stacked float32 buffers; ``step()`` updates all K.
 
     The arithmetic of :class:`~companion.learning.trainer.MlpTrainer` member by member (a test
@@ -195,48 +195,13 @@ class EnsembleTrainer(RmsPropState):
         if obs_batch.shape[:2] != self._raw.shape[:2]:
             if obs_batch.shape[0] == self.members:
                 self._alloc(obs_batch.shape[1])
-        if obs_batch.shape != self._raw.shape or target_batch.shape != self._y.shape:
-            raise ValueError(f"need obs {self._raw.shape} and targets {self._y.shape}, got "
-                             f"{obs_batch.shape} and {target_batch.shape}")
-        xa, xv, A, dz, mask, zero = self._xa, self._xv, self._A, self._dz, self._mask, F32(0)
-        y = forward_into(obs_batch, self.mean, self.std, self._raw, xa, xv, A, self._y)
-        last = len(A) - 1
-        diff = np.subtract(y, target_batch, out=self._diff)
-        root = None if row_weights is None else root_weights(row_weights, obs_batch.shape[:-1])
-        if root is not None:
-            np.multiply(diff, root, out=diff)  # sqrt(w) (y - t), as MlpTrainer.step
+        y, diff, root = self._residual(obs_batch, target_batch, row_weights)  # as MlpTrainer.step
         losses = np.einsum("knj,knj->k", diff, diff) / F32(diff[0].size)
         if not np.all(np.isfinite(losses)):
             raise FloatingPointError(f"training loss became {losses.tolist()} at update {self.updates + 1}")
-        if root is not None:
-            np.multiply(diff, root, out=diff)  # w (y - t)
-        np.multiply(y, y, out=mask[last])
-        np.subtract(1, mask[last], out=mask[last])
-        np.multiply(diff, self._norm, out=dz[last])
-        np.multiply(dz[last], mask[last], out=dz[last])
-        for k in range(last, -1, -1):
-            np.matmul(xa[k].transpose(0, 2, 1), dz[k], out=self._gA[k])
-            if k:
-                np.matmul(dz[k], self._AwT[k], out=dz[k - 1])
-                np.greater(xv[k], zero, out=mask[k - 1])
-                np.multiply(dz[k - 1], mask[k - 1], out=dz[k - 1])
-        self._rmsprop()
-        self.updates += 1
+        self._update(y, diff, root)
         self.member_losses = losses.astype(F32)
         return float(losses.mean())
-
-    def _rmsprop(self) -> None:
-        alpha, one_m_alpha, eps, neg_lr = self._c
-        sq, g, den, num = self._sq, self._g, self._den, self._num
-        np.multiply(sq, alpha, out=sq)
-        np.multiply(g, one_m_alpha, out=num)
-        np.multiply(num, g, out=num)
-        np.add(sq, num, out=sq)
-        np.sqrt(sq, out=den)
-        np.add(den, eps, out=den)
-        np.multiply(g, neg_lr, out=num)
-        np.divide(num, den, out=num)
-        np.add(self._p, num, out=self._p)
 
     def weights(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
         """Copies of the stacks ``(K, out, in)`` and ``(K, out)``, layer by layer."""

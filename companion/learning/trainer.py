@@ -58,12 +58,29 @@ def forward_into(obs: np.ndarray, mean: np.ndarray, std: np.ndarray, raw: np.nda
 
 class RmsPropState:
     """RMSprop's state of a trainer (square averages ``_sq``, step count ``updates``): what
-    another process needs to go on; and the flat parameter buffer ``_p`` it updates. Shared by
-    the single network and the ensemble."""
+    another process needs to go on; and the flat parameter buffer ``_p`` it updates with the
+    flat gradient ``_g``. Shared by the single network and the ensemble."""
 
     _p: np.ndarray
+    _g: np.ndarray
     _sq: np.ndarray
+    _den: np.ndarray
+    _num: np.ndarray
+    _c: tuple[np.float32, np.float32, np.float32, np.float32]  # alpha, 1 - alpha, eps, -lr
     updates: int
+
+    def _rmsprop(self) -> None:
+        alpha, one_m_alpha, eps, neg_lr = self._c
+        sq, g, den, num = self._sq, self._g, self._den, self._num
+        np.multiply(sq, alpha, out=sq)  # sq.mul_(alpha).addcmul_(g, g, value=1-alpha)
+        np.multiply(g, one_m_alpha, out=num)
+        np.multiply(num, g, out=num)
+        np.add(sq, num, out=sq)
+        np.sqrt(sq, out=den)  # den = sq.sqrt().add_(eps)
+        np.add(den, eps, out=den)
+        np.multiply(g, neg_lr, out=num)  # p.addcdiv_(g, den, value=-lr)
+        np.divide(num, den, out=num)
+        np.add(self._p, num, out=self._p)
 
     def flat_parameters(self) -> np.ndarray:
         """Every weight and bias in one read-only float32 view: it changes with every update
@@ -91,7 +108,61 @@ class RmsPropState:
         self.updates = int(state["updates"])
 
 
-class MlpTrainer(RmsPropState):
+class TrainerStep(RmsPropState):
+    """One update's arithmetic on a trainer's preallocated buffers, shared by :class:`MlpTrainer`
+    and the ensemble's trainer: their buffers differ only by the ensemble's leading member axis.
+    The forward pass, the (weighted) residual, the backward pass and RMSprop are the same NumPy
+    calls for both; each trainer sizes its buffers and reduces its own loss."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    _A: list[np.ndarray]
+    _gA: list[np.ndarray]
+    _AwT: list[np.ndarray]
+    _xa: list[np.ndarray]
+    _xv: list[np.ndarray]
+    _dz: list[np.ndarray]
+    _mask: list[np.ndarray]
+    _raw: np.ndarray
+    _y: np.ndarray
+    _diff: np.ndarray
+    _norm: np.float32
+
+    def _residual(self, obs_batch: np.ndarray, target_batch: np.ndarray,
+                  row_weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``(y, diff, root)``: the network's output on ``obs_batch``, ``sqrt(w) (y - t)`` (``y - t``
+        without ``row_weights``: its squares are the weighted errors) and ``sqrt(w)`` (None)."""
+        if obs_batch.shape != self._raw.shape or target_batch.shape != self._y.shape:
+            raise ValueError(f"need obs {self._raw.shape} and targets {self._y.shape}, got "
+                             f"{obs_batch.shape} and {target_batch.shape}")
+        y = forward_into(obs_batch, self.mean, self.std, self._raw, self._xa, self._xv, self._A, self._y)
+        diff = np.subtract(y, target_batch, out=self._diff)
+        root = None if row_weights is None else root_weights(row_weights, obs_batch.shape[:-1])
+        if root is not None:
+            np.multiply(diff, root, out=diff)  # sqrt(w) (y - t): its squares are the weighted errors
+        return y, diff, root
+
+    def _update(self, y: np.ndarray, diff: np.ndarray, root: np.ndarray | None) -> None:
+        """Backpropagate the residual of :meth:`_residual` into ``_gA`` and take one RMSprop step."""
+        xa, xv, dz, mask, zero = self._xa, self._xv, self._dz, self._mask, F32(0)
+        last = len(self._A) - 1
+        if root is not None:
+            np.multiply(diff, root, out=diff)  # w (y - t): the weighted loss's gradient
+        np.multiply(y, y, out=mask[last])  # tanh' = 1 - y^2
+        np.subtract(1, mask[last], out=mask[last])
+        np.multiply(diff, self._norm, out=dz[last])
+        np.multiply(dz[last], mask[last], out=dz[last])
+        for k in range(last, -1, -1):
+            np.matmul(xa[k].swapaxes(-1, -2), dz[k], out=self._gA[k])  # [dW.T; db] in one GEMM
+            if k:
+                np.matmul(dz[k], self._AwT[k], out=dz[k - 1])
+                np.greater(xv[k], zero, out=mask[k - 1])  # ReLU' from its output
+                np.multiply(dz[k - 1], mask[k - 1], out=dz[k - 1])
+        self._rmsprop()
+        self.updates += 1
+
+
+class MlpTrainer(TrainerStep):
     """MLP weights + RMSprop state as float32 NumPy buffers; ``step()`` is one update."""
 
     def __init__(self, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
@@ -143,47 +214,12 @@ class MlpTrainer(RmsPropState):
         """
         if obs_batch.shape[0] != self._raw.shape[0]:
             self._alloc(obs_batch.shape[0])
-        if obs_batch.shape != self._raw.shape or target_batch.shape != self._y.shape:
-            raise ValueError(f"need obs {self._raw.shape} and targets {self._y.shape}, got "
-                             f"{obs_batch.shape} and {target_batch.shape}")
-        xa, xv, A, dz, mask, zero = self._xa, self._xv, self._A, self._dz, self._mask, F32(0)
-        y = forward_into(obs_batch, self.mean, self.std, self._raw, xa, xv, A, self._y)
-        last = len(A) - 1
-        diff = np.subtract(y, target_batch, out=self._diff)
-        root = None if row_weights is None else root_weights(row_weights, obs_batch.shape[:-1])
-        if root is not None:
-            np.multiply(diff, root, out=diff)  # sqrt(w) (y - t): its squares are the weighted errors
+        y, diff, root = self._residual(obs_batch, target_batch, row_weights)
         loss = float(np.dot(self._flat_diff, self._flat_diff) / F32(diff.size))
         if not math.isfinite(loss):
             raise FloatingPointError(f"training loss became {loss} at update {self.updates + 1}")
-        if root is not None:
-            np.multiply(diff, root, out=diff)  # w (y - t): the weighted loss's gradient
-        np.multiply(y, y, out=mask[last])  # tanh' = 1 - y^2
-        np.subtract(1, mask[last], out=mask[last])
-        np.multiply(diff, self._norm, out=dz[last])
-        np.multiply(dz[last], mask[last], out=dz[last])
-        for k in range(last, -1, -1):
-            np.matmul(xa[k].T, dz[k], out=self._gA[k])  # [dW.T; db] in one GEMM
-            if k:
-                np.matmul(dz[k], self._AwT[k], out=dz[k - 1])
-                np.greater(xv[k], zero, out=mask[k - 1])  # ReLU' from its output
-                np.multiply(dz[k - 1], mask[k - 1], out=dz[k - 1])
-        self._rmsprop()
-        self.updates += 1
+        self._update(y, diff, root)
         return loss
-
-    def _rmsprop(self) -> None:
-        alpha, one_m_alpha, eps, neg_lr = self._c
-        sq, g, den, num = self._sq, self._g, self._den, self._num
-        np.multiply(sq, alpha, out=sq)  # sq.mul_(alpha).addcmul_(g, g, value=1-alpha)
-        np.multiply(g, one_m_alpha, out=num)
-        np.multiply(num, g, out=num)
-        np.add(sq, num, out=sq)
-        np.sqrt(sq, out=den)  # den = sq.sqrt().add_(eps)
-        np.add(den, eps, out=den)
-        np.multiply(g, neg_lr, out=num)  # p.addcdiv_(g, den, value=-lr)
-        np.divide(num, den, out=num)
-        np.add(self._p, num, out=self._p)
 
     # -- interop with the project's torch model, optimiser and snapshots -----------------------
     def weights(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
