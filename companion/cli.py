@@ -9,6 +9,7 @@ import logging
 import os
 import signal
 import statistics
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -49,30 +50,47 @@ def _interrupted(where: Path | None) -> typer.Exit:
     return typer.Exit(130)
 
 
-def _load(config: Path | None):  # type: ignore[no-untyped-def]
+@contextlib.contextmanager
+def _flight_exits(run_dir: Path | None) -> Iterator[None]:
+    """How a command that flies episodes ends on an error (exit 2, what went wrong) or on Ctrl-C
+    (exit 130, where the finished episodes are kept)."""
+    try:
+        yield
+    except ColError as exc:
+        raise _fail(exc) from None
+    except KeyboardInterrupt:
+        raise _interrupted(run_dir) from None
+
+
+def _load(config: Path | None, camera: str | None = None):  # type: ignore[no-untyped-def]
+    """The companion's config of ``--config``, with ``--camera`` (when given) as its camera."""
     from companion.config import load_companion_config
 
-    return load_companion_config(config)
+    cfg = load_companion_config(config)
+    if camera is not None:
+        cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
+    return cfg
 
 
-def _progress(total: int, label: str):  # type: ignore[no-untyped-def]
-    bar = tqdm(total=total, desc=label, unit="ep", leave=False, disable=None)
-
-    def on_episode(record) -> None:  # type: ignore[no-untyped-def]
-        bar.update(1)
-        bar.set_postfix(outcome=record.outcome, success=record.success, samples=record.dataset_size)
-
-    return bar, on_episode
+@contextlib.contextmanager
+def _episode_bar(total: int, label: str, done: int = 0) -> Iterator[tqdm]:
+    """A progress bar of ``total`` episodes (``done`` of them already), closed afterwards."""
+    bar = tqdm(total=total, initial=min(done, total), desc=label, unit="ep", leave=False, disable=None)
+    try:
+        yield bar
+    finally:
+        bar.close()
 
 
 def _run(cfg, opts, label: str):  # type: ignore[no-untyped-def]
     from companion.app import run_episodes
 
-    bar, on_episode = _progress(opts.episodes or cfg.session.episodes, label)
-    try:
+    with _episode_bar(opts.episodes or cfg.session.episodes, label) as bar:
+        def on_episode(record) -> None:  # type: ignore[no-untyped-def]
+            bar.update(1)
+            bar.set_postfix(outcome=record.outcome, success=record.success, samples=record.dataset_size)
+
         return run_episodes(cfg, opts, on_episode)
-    finally:
-        bar.close()
 
 
 def _fail(exc: Exception) -> typer.Exit:
@@ -102,19 +120,13 @@ def fly(
     _setup(verbose)
     from companion.app import RunOptions
 
-    try:
-        cfg = _load(config)
+    with _flight_exits(run_dir):
+        cfg = _load(config, camera)
         if signing_key is not None:
             cfg = cfg.model_copy(update={"link": cfg.link.model_copy(update={"signing_key_file": str(signing_key)})})
-        if camera is not None:
-            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
         opts = RunOptions(connection=connect, simulator=simulator, pilot=pilot, condition=condition, episodes=episodes, checkpoint=checkpoint,
                           run_dir=run_dir, config_path=config, seed=seed, learn=learn, lockstep=lockstep, pictures=pictures)
         result = _run(cfg, opts, f"fly {condition}")
-    except ColError as exc:
-        raise _fail(exc) from None
-    except KeyboardInterrupt:
-        raise _interrupted(run_dir) from None
     for r in result.records:
         success = "unknown" if r.success is None else r.success
         typer.echo(f"episode {r.episode:3d} {r.phase:13s} {r.outcome:9s} success={success} "
@@ -168,15 +180,9 @@ def eval_cmd(
 ) -> None:
     """Fly a policy alone (in the SITL, lockstep; or on the vehicle --connect names) and report its success rate."""
     _setup(verbose)
-    try:
-        cfg = _load(config)
-        if camera is not None:
-            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
-        report = evaluate(cfg, checkpoint, episodes, seed, run_dir, config, connect, simulator, pictures)
-    except ColError as exc:
-        raise _fail(exc) from None
-    except KeyboardInterrupt:
-        raise _interrupted(run_dir) from None
+    with _flight_exits(run_dir):
+        report = evaluate(_load(config, camera), checkpoint, episodes, seed, run_dir, config, connect, simulator,
+                          pictures)
     if report["success_rate"] is None:
         typer.echo(f"success unknown for all {report['episodes']} episodes (no ground truth); "
                    f"{report['touchdowns']} touchdowns, median estimated distance {report['touchdown_distance_m_median']} m")
@@ -244,7 +250,7 @@ def demo(
     from companion.app import RunOptions, default_run_dir, run_episodes, write_pictures
     from companion.pictures.recorder import FlightRecorder
 
-    try:
+    with _flight_exits(run_dir):
         cfg = _load(config)
         root = run_dir or default_run_dir(cfg, "demo")
         recorder = FlightRecorder() if pictures else None  # one picture of both training runs
@@ -266,10 +272,6 @@ def demo(
         if recorder is not None:
             write_pictures(recorder, trained, cfg, "demo")
         report = evaluate(cfg, last, eval_episodes, 100_000, root / "eval", config, pictures=pictures)
-    except ColError as exc:
-        raise _fail(exc) from None
-    except KeyboardInterrupt:
-        raise _interrupted(run_dir) from None
     for r in trained.records:
         typer.echo(f"  train episode {r.episode} {r.phase:13s} {r.outcome:9s} success={r.success} human_samples={r.human_samples} interventions={r.interventions}")
     typer.echo(f"learned from {trained.dataset_size} human samples "
@@ -325,9 +327,7 @@ def console(
                 parse_destination(rtp)
             except ValueError as exc:
                 raise typer.BadParameter(str(exc), param_hint="--rtp") from None
-        cfg = _load(config)
-        if camera is not None:
-            cfg = cfg.model_copy(update={"perception": cfg.perception.model_copy(update={"camera": camera})})
+        cfg = _load(config, camera)
         autostart = None
         if start is not None:
             cond, _, count = start.partition(":")
@@ -578,11 +578,8 @@ def ppo(
             typer.echo(json.dumps(evaluate_checkpoint(folder, cfg, config, eval_episodes)))
             return
         if random:
-            bar = tqdm(total=episodes, desc=f"random {actions} actions", unit="ep", leave=False, disable=None)
-            try:
+            with _episode_bar(episodes, f"random {actions} actions") as bar:
                 runs = random_policy(actions, episodes, cfg, config, seed, lambda r: bar.update(1))
-            finally:
-                bar.close()
             report = {"action_dims": actions, "seed0": seed, **summarise(runs)}
             folder.mkdir(parents=True, exist_ok=True)
             (folder / "random.json").write_text(json.dumps({"summary": report, "episodes": runs}, indent=1) + "\n")
@@ -591,12 +588,8 @@ def ppo(
         settings = PpoSettings(action_dims=actions, episodes=episodes, eval_episodes=eval_episodes, seed=seed, n_steps=n_steps,
                                log_std_init=log_std_init, ent_coef=ent_coef, normalize_advantage=normalize_advantage,
                                n_envs=envs, inprocess=not mavlink)
-        done = _episodes_logged(folder)
-        bar = tqdm(total=episodes, initial=min(done, episodes), desc=f"ppo {actions} actions", unit="ep", leave=False, disable=None)
-        try:
+        with _episode_bar(episodes, f"ppo {actions} actions", _episodes_logged(folder)) as bar:
             results = run_ppo(settings, folder, cfg, config, lambda r: bar.update(1), workers=workers, batched=batched)
-        finally:
-            bar.close()
     except ColError as exc:
         raise _fail(exc) from None
     ev = results["eval"]
@@ -633,12 +626,8 @@ def finetune(
                                     learning_rate=learning_rate, log_std_init=log_std_init, bc_weight=bc_weight,
                                     bc_half_life=bc_half_life)
         folder = out or default_run_dir(cfg, "finetune")
-        bar = tqdm(total=episodes, initial=min(_episodes_logged(folder), episodes), desc="finetune", unit="ep",
-                   leave=False, disable=None)
-        try:
+        with _episode_bar(episodes, "finetune", _episodes_logged(folder)) as bar:
             results = run_finetune(checkpoint, settings, folder, cfg, config, dataset, lambda r: bar.update(1))
-        finally:
-            bar.close()
     except ColError as exc:
         raise _fail(exc) from None
     before, after = results["before"], results["after"]
