@@ -10,9 +10,13 @@ input source decides the mapping (throttle range, override button) from its conf
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+import logging
+from collections import Counter
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+log = logging.getLogger(__name__)
 
 AXIS_LIMIT = 1000
 AXIS_UNUSED = 32767  # INT16_MAX: "this axis is invalid/unused"
@@ -101,3 +105,27 @@ def parse_manual_control(msg: Any, received_s: float) -> ManualControlMessage | 
     return manual_control_from_fields(
         msg.to_dict(), msg.get_srcSystem(), msg.get_srcComponent(), received_s
     )
+
+
+def addressed_to_us(target: int, companion_system: int, vehicle_system: int | None) -> bool:
+    """Whether a MANUAL_CONTROL for system ``target`` is ours to take: sent to all (0), to the
+    companion, or to the vehicle it flies (``vehicle_system``; None: none adopted yet)."""
+    return target in (0, companion_system) or target == vehicle_system
+
+
+def deliver_manual_control(value: ManualControlMessage | None, sender: int, counts: Counter[str],
+                           callback: Callable[[ManualControlMessage], None] | None) -> None:
+    """A link's last step with a MANUAL_CONTROL of system ``sender``: out of range (None) it is
+    dropped, counted and logged; else handed to ``callback`` (if any), whose failure is counted
+    and logged, never the end of the link's thread."""
+    if value is None:
+        counts["manual_control_dropped"] += 1
+        log.warning("MANUAL_CONTROL from %d with out-of-range axes dropped", sender)
+        return
+    if callback is None:
+        return
+    try:
+        callback(value)
+    except Exception:  # noqa: BLE001 - a faulty consumer must not kill the link
+        counts["callback_errors"] += 1
+        log.exception("manual-control callback failed")

@@ -22,7 +22,11 @@ from companion.config import LinkConfig
 from companion.errors import LinkLost
 from companion.link.base import LinkStats, ManualControlCallback
 from companion.link.connection import ConnectionSpec, open_mavlink
-from companion.link.manual_control import parse_manual_control
+from companion.link.manual_control import (
+    addressed_to_us,
+    deliver_manual_control,
+    parse_manual_control,
+)
 from companion.link.signing import diagnose, enable_signing, load_key
 from companion.link.telemetry import (
     InvalidTelemetry,
@@ -236,23 +240,7 @@ class MavlinkIO:
 
     def _manual_control(self, msg: Any, now: float) -> None:
         self.counts["manual_control_received"] += 1
-        targets = {0, self.cfg.source_system}
-        if self.target is not None:
-            targets.add(self.target[0])
-        if msg.target not in targets:
-            return
-        value = parse_manual_control(msg, now)
-        if value is None:
-            self.counts["manual_control_dropped"] += 1
-            log.warning(
-                "MANUAL_CONTROL from %d with out-of-range axes dropped", msg.get_srcSystem()
-            )
-            return
-        callback = self.manual_callback
-        if callback is None:
-            return
-        try:
-            callback(value)
-        except Exception:  # noqa: BLE001 - a faulty consumer must not kill the link
-            self.counts["callback_errors"] += 1
-            log.exception("manual-control callback failed")
+        vehicle = self.target[0] if self.target is not None else None
+        if addressed_to_us(msg.target, self.cfg.source_system, vehicle):
+            value = parse_manual_control(msg, now)
+            deliver_manual_control(value, msg.get_srcSystem(), self.counts, self.manual_callback)

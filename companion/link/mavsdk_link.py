@@ -28,7 +28,11 @@ from companion.config import LinkConfig
 from companion.errors import CommandRejected, ConfigError, LinkLost, LinkTimeout
 from companion.link.async_runner import AsyncRunner
 from companion.link.base import LinkStats, ManualControlCallback, SetpointLimits, VehicleLink
-from companion.link.manual_control import manual_control_from_fields
+from companion.link.manual_control import (
+    addressed_to_us,
+    deliver_manual_control,
+    manual_control_from_fields,
+)
 from companion.link.mavlink_link import message_id
 from companion.link.mavlink_link import result_name as mav_result_name
 from companion.link.mavsdk_convert import (
@@ -208,23 +212,12 @@ class MavsdkLink(VehicleLink):
         self._counts["manual_control_received"] += 1
         fields = json.loads(message.fields_json)
         snapshot = self._snapshot
-        targets = {0, self.cfg.source_system, snapshot.system_id if snapshot else 0}
-        if int(fields.get("target", 0)) not in targets:
-            return
-        value = manual_control_from_fields(
-            fields, message.system_id, message.component_id, time.monotonic()
-        )
-        if value is None:
-            self._counts["manual_control_dropped"] += 1
-            return
-        callback = self._manual_cb
-        if callback is None:
-            return
-        try:
-            callback(value)
-        except Exception:  # noqa: BLE001 - a faulty consumer must not kill the link
-            self._counts["callback_errors"] += 1
-            log.exception("manual-control callback failed")
+        vehicle = snapshot.system_id if snapshot else None
+        if addressed_to_us(int(fields.get("target", 0)), self.cfg.source_system, vehicle):
+            value = manual_control_from_fields(
+                fields, message.system_id, message.component_id, time.monotonic()
+            )
+            deliver_manual_control(value, message.system_id, self._counts, self._manual_cb)
 
     def _heard(self, now: float) -> None:
         if self._last_heard_s is not None and not self.link_alive():
