@@ -18,7 +18,6 @@ gradient to PPO's (already norm-clipped) gradient, so each step follows the sum 
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -38,12 +37,12 @@ from companion.learning.dataset import discarded_episodes, load_csv
 from companion.learning.policy import PolicyNet, PolicySnapshot
 from companion.rl.gym_env import LandingEnv
 from companion.rl.ppo import (
-    EVAL_SEED,
     EpisodeHook,
+    PpoRunSettings,
     evaluate,
     recorded_settings,
     refuse_other_settings,
-    train,
+    train_in_folder,
 )
 from companion.rl.run_config import record_run_config, task_summary
 from companion.rl.vec_env import make_vec_env
@@ -55,41 +54,30 @@ POLICY_FROM_ENV = (1, 0, 3, 2)  # the same swap undoes itself
 
 
 @dataclass(frozen=True)
-class FinetuneSettings:
-    """One fine-tuning run (4 actions). Our choices, not the paper's: a small initial action
-    noise (``log_std_init`` -1.5: a standard deviation of 0.22 stick around the human-trained
-    actor, not stable-baselines3's 1), a lower learning rate than PPO's default, and shorter
-    rollouts, so that a few dozen episodes make several updates."""
+class FinetuneSettings(PpoRunSettings):
+    """One fine-tuning run (4 actions): :class:`~companion.rl.ppo.PpoRunSettings` and the
+    behaviour-cloning term's. Our choices, not the paper's: a small initial action noise
+    (``log_std_init`` -1.5: a standard deviation of 0.22 stick around the human-trained actor,
+    not stable-baselines3's 1), a lower learning rate than PPO's default, and shorter rollouts,
+    so that a few dozen episodes make several updates."""
 
+    action_dims: int = 4
     episodes: int = 50
-    eval_episodes: int = 100
-    seed: int = 0
-    eval_seed: int = EVAL_SEED
     n_steps: int = 512
-    batch_size: int = 64
-    n_epochs: int = 10
     learning_rate: float = 1e-4
-    gamma: float = 0.99
     log_std_init: float = -1.5
-    ent_coef: float = 0.0
     bc_weight: float = 1.0
     bc_half_life: float = 10.0
     bc_batch_size: int = 64
-    n_envs: int = 1
-    inprocess: bool = True
-    action_dims: int = 4
 
     def __post_init__(self) -> None:
         if self.action_dims != 4:
             raise ConfigError("fine-tuning flies all four axes, as the checkpoint's policy does")
-        for name in ("episodes", "eval_episodes", "n_steps", "batch_size", "n_epochs", "bc_batch_size", "n_envs"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
+        super().__post_init__()
+        if self.bc_batch_size < 1:
+            raise ConfigError(f"bc_batch_size must be at least 1, got {self.bc_batch_size}")
         if self.bc_weight < 0.0 or self.bc_half_life <= 0.0:
             raise ConfigError(f"bc_weight must be >= 0 and bc_half_life > 0, got {self.bc_weight}, {self.bc_half_life}")
-        if not 0.0 < self.learning_rate < 1.0 or not -5.0 <= self.log_std_init <= 1.0:
-            raise ConfigError(f"learning_rate must be in (0, 1) and log_std_init in [-5, 1], got "
-                              f"{self.learning_rate}, {self.log_std_init}")
 
 
 # ====================================================================== the actor-critic
@@ -232,17 +220,10 @@ def run_finetune(checkpoint: Path, settings: FinetuneSettings, out_dir: Path, cf
     torch.set_num_threads(cfg.learner.torch_threads)
     before = _evaluated(out_dir / "before.json", snapshot, settings, cfg, config_path)
     venv = make_vec_env(4, cfg, settings.n_envs, config_path, inprocess=settings.inprocess)
-    try:
-        wall0 = time.monotonic()
-        with (out_dir / "train_episodes.jsonl").open("a") as log_file:
-            model, episodes = train(venv, settings, _logging(log_file, on_episode), out_dir,
-                                    make=lambda env: _with_bc(make_finetune_model(env, snapshot, settings),
-                                                              obs, actions, settings),
-                                    on_load=lambda m: _with_bc(m, obs, actions, settings))
-        train_s = float(episodes[-1]["wall_s"]) if episodes else time.monotonic() - wall0
-        model.save(out_dir / "model.zip")
-    finally:
-        venv.close()
+    model, episodes, train_s = train_in_folder(
+        venv, settings, out_dir, on_episode,
+        make=lambda env: _with_bc(make_finetune_model(env, snapshot, settings), obs, actions, settings),
+        on_load=lambda m: _with_bc(m, obs, actions, settings))
     policy = model.policy
     assert isinstance(policy, CoLPolicy)
     tuned = policy.actor_snapshot()
@@ -305,13 +286,3 @@ def _check_same(out_dir: Path, settings: FinetuneSettings, checkpoint: Path, dat
         recorded = {**recorded, "checkpoint": results.get("checkpoint"), "dataset": results.get("dataset")}
     refuse_other_settings(out_dir, {**asdict(FinetuneSettings()), **recorded}, now)  # added since: defaults
     return True
-
-
-def _logging(log_file: Any, on_episode: EpisodeHook | None) -> EpisodeHook:
-    def hook(record: dict[str, Any]) -> None:
-        log_file.write(json.dumps(record) + "\n")
-        log_file.flush()
-        if on_episode is not None:
-            on_episode(record)
-
-    return hook

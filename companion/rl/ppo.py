@@ -42,10 +42,11 @@ CHECKPOINT_STATE = "checkpoint.json"
 
 
 @dataclass(frozen=True)
-class PpoSettings:
-    """One PPO baseline run. PPO's hyperparameters are stable-baselines3's defaults unless set
-    (the paper does not give its own). ``log_std_init`` (the initial log standard deviation of
-    the Gaussian policy) and ``ent_coef`` are stable-baselines3's 0 and 0 by default."""
+class PpoRunSettings:
+    """What every PPO run here is set by (the baseline's and the fine-tuning's): the actions, the
+    episodes and their seeds, PPO's hyperparameters (stable-baselines3's defaults unless set; the
+    paper does not give its own) and where the envs run. ``log_std_init`` (the initial log
+    standard deviation of the Gaussian policy) and ``ent_coef`` are stable-baselines3's 0 and 0."""
 
     action_dims: int = 2
     episodes: int = 1000
@@ -59,7 +60,6 @@ class PpoSettings:
     gamma: float = 0.99
     log_std_init: float = 0.0
     ent_coef: float = 0.0
-    normalize_advantage: bool = True
     n_envs: int = 1
     inprocess: bool = True
 
@@ -78,6 +78,14 @@ class PpoSettings:
         if not -5.0 <= self.log_std_init <= 1.0 or self.ent_coef < 0.0 or self.n_envs < 1:
             raise ConfigError(f"log_std_init must be in [-5, 1], ent_coef >= 0 and n_envs >= 1, got "
                               f"{self.log_std_init}, {self.ent_coef}, {self.n_envs}")
+
+
+@dataclass(frozen=True)
+class PpoSettings(PpoRunSettings):
+    """One PPO baseline run: :class:`PpoRunSettings` and whether advantages are normalised per
+    minibatch (stable-baselines3: yes)."""
+
+    normalize_advantage: bool = True
 
 
 class EpisodeLog(BaseCallback):
@@ -167,6 +175,23 @@ def train(env: LandingEnv | VecEnv, settings: Any, on_episode: EpisodeHook | Non
     return model, log.episodes
 
 
+def train_in_folder(venv: VecEnv, settings: PpoRunSettings, out_dir: Path, on_episode: EpisodeHook | None = None,
+                    make: ModelMaker | None = None, on_load: Callable[[PPO], PPO] | None = None,
+                    ) -> tuple[PPO, list[dict[str, Any]], float]:
+    """:func:`train` a run folder's model (resumed from its checkpoint), each episode a line of
+    ``train_episodes.jsonl`` as soon as it ends, the model then in ``model.zip``; also the
+    training's wall time in seconds (the log's, across resumes). Closes ``venv``."""
+    try:
+        wall0 = time.monotonic()
+        with (out_dir / "train_episodes.jsonl").open("a") as log_file:
+            model, episodes = train(venv, settings, _logged(log_file, on_episode), out_dir, make, on_load)
+        train_s = float(episodes[-1]["wall_s"]) if episodes else time.monotonic() - wall0
+        model.save(out_dir / "model.zip")
+    finally:
+        venv.close()
+    return model, episodes, train_s
+
+
 class Actor(Protocol):
     """What flies an evaluation: stable-baselines3's ``predict``."""
 
@@ -242,14 +267,7 @@ def run_ppo(settings: PpoSettings, out_dir: Path, cfg: CompanionConfig | None = 
     torch.set_num_threads(cfg.learner.torch_threads)
     venv = make_vec_env(settings.action_dims, cfg, settings.n_envs, config_path, inprocess=settings.inprocess,
                         workers=workers, batched=batched)
-    try:
-        wall0 = time.monotonic()
-        with (out_dir / "train_episodes.jsonl").open("a") as log_file:
-            model, episodes = train(venv, settings, _logged(log_file, on_episode), out_dir)
-        train_s = float(episodes[-1]["wall_s"]) if episodes else time.monotonic() - wall0
-        model.save(out_dir / "model.zip")
-    finally:
-        venv.close()
+    model, episodes, train_s = train_in_folder(venv, settings, out_dir, on_episode)
     eval_env = LandingEnv(settings.action_dims, cfg, config_path=config_path, inprocess=settings.inprocess)
     try:
         wall1 = time.monotonic()
