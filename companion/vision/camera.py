@@ -15,7 +15,8 @@ import os
 import socket
 import threading
 import time
-from typing import Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -101,7 +102,26 @@ class _FrameSlot:
             log.warning(message)
 
 
-class SitlCameraSource:
+class _ReaderSource:
+    """A source whose reader thread puts frames into a :class:`_FrameSlot` the caller reads."""
+
+    def __init__(self, name: str) -> None:
+        self._slot = _FrameSlot(name)
+        self._closed = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def latest(self) -> Frame | None:
+        return self._slot.latest()
+
+    def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None:
+        return self._slot.wait(time_boot_ms, timeout_s)
+
+    def _start_reader(self, name: str, run: Callable[..., None], *args: Any) -> None:
+        self._thread = threading.Thread(target=run, args=args, name=name, daemon=True)
+        self._thread.start()
+
+
+class SitlCameraSource(_ReaderSource):
     """Reads a ``colf://host:port`` stream (the SITL's camera) and reconnects if it drops."""
 
     vehicle_time_stamps = True  # frames carry the simulation's time_boot_ms of their pose
@@ -110,10 +130,8 @@ class SitlCameraSource:
         self.uri = uri
         self.host, self.port = parse_colf_uri(uri)
         self.connect_timeout_s, self.reconnect_s = connect_timeout_s, reconnect_s
-        self._slot = _FrameSlot(uri)
-        self._closed = threading.Event()
+        super().__init__(uri)
         self._sock: socket.socket | None = None
-        self._thread: threading.Thread | None = None
 
     def open(self) -> None:
         try:
@@ -123,14 +141,7 @@ class SitlCameraSource:
                 f"cannot connect to camera stream {self.uri}: {exc}. Is the SITL running with "
                 "[sitl.camera] enabled = true, and is this its camera_port?"
             ) from exc
-        self._thread = threading.Thread(target=self._run, args=(sock,), name="colf-reader", daemon=True)
-        self._thread.start()
-
-    def latest(self) -> Frame | None:
-        return self._slot.latest()
-
-    def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None:
-        return self._slot.wait(time_boot_ms, timeout_s)
+        self._start_reader("colf-reader", self._run, sock)
 
     def close(self) -> None:
         self._closed.set()
@@ -188,7 +199,7 @@ class SitlCameraSource:
         return sock
 
 
-class OpenCVCameraSource:
+class OpenCVCameraSource(_ReaderSource):
     """A real camera through ``cv2.VideoCapture``: a device index, a video file or a URL.
 
     Frames are stamped in milliseconds of a monotonic clock since ``open()``; this clock is not
@@ -202,10 +213,8 @@ class OpenCVCameraSource:
         self.spec = spec
         self.open_timeout_s = open_timeout_s
         self._is_file = isinstance(spec, str) and os.path.isfile(spec)
-        self._slot = _FrameSlot(str(spec))
-        self._closed = threading.Event()
+        super().__init__(str(spec))
         self._cap: cv2.VideoCapture | None = None
-        self._thread: threading.Thread | None = None
         self._t0 = 0.0
         self._count = 0
         self._release_lock = threading.Lock()
@@ -222,14 +231,7 @@ class OpenCVCameraSource:
             cap.release()
             raise CameraError(f"camera {self.spec!r} opened but gave no frame; is it in use or empty?")
         self._slot.put(first)
-        self._thread = threading.Thread(target=self._run, name="opencv-reader", daemon=True)
-        self._thread.start()
-
-    def latest(self) -> Frame | None:
-        return self._slot.latest()
-
-    def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None:
-        return self._slot.wait(time_boot_ms, timeout_s)
+        self._start_reader("opencv-reader", self._run)
 
     def close(self) -> None:
         """Stop reading and release the capture, never under a read that is still running (a
