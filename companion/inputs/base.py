@@ -7,13 +7,17 @@ the override trigger? The arbiter decides what to do with the answer.
 
 from __future__ import annotations
 
+import threading
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
+    from companion.config import PilotConfig
     from companion.msg.observation import Observation
 
 
@@ -90,3 +94,21 @@ class HumanInput(ABC):
     def close(self) -> None:
         """Release devices; reading after close is an error of the caller."""
         return None  # default: nothing held
+
+
+class FedInput(HumanInput):
+    """A person's input another thread feeds (a link's, the console's server) and the control
+    loop reads: the latest command and when it came (``clock``), under one lock. It counts as
+    the person's only while it is at most ``manual_timeout_s`` old."""
+
+    def __init__(self, cfg: PilotConfig, clock: Callable[[], float] = time.monotonic) -> None:
+        self.cfg = cfg
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._latest = HumanCommand.neutral()
+        self._received_s: float | None = None
+
+    def _received_lately(self) -> bool:
+        """Whether a command came within ``manual_timeout_s`` (called with the lock held)."""
+        received = self._received_s
+        return received is not None and self._clock() - received <= self.cfg.manual_timeout_s

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from companion.commands import sanitize
 from companion.config import PilotConfig
-from companion.inputs.base import HumanCommand, HumanInput
+from companion.inputs.base import FedInput, HumanCommand
 from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
@@ -100,15 +99,11 @@ def command_from_gamepad(axes: Sequence[Any], buttons: Sequence[Any],
     return HumanCommand(cmd, override_held=held), issues.non_finite + issues.clamped
 
 
-class BrowserInput(HumanInput):
+class BrowserInput(FedInput):
     """The page's latest sticks; thread-safe between the server (feed) and control (read)."""
 
     def __init__(self, cfg: PilotConfig, clock: Callable[[], float] = time.monotonic) -> None:
-        self.cfg = cfg
-        self._clock = clock
-        self._lock = threading.Lock()
-        self._latest = HumanCommand.neutral()
-        self._received_s: float | None = None
+        super().__init__(cfg, clock)
         self._connected = False
         self._gone: str | None = NO_PAGE  # why no page is connected
         self._refused: str | None = None  # why the page's latest input was refused (until a good one)
@@ -167,8 +162,7 @@ class BrowserInput(HumanInput):
             self._latched = None
 
     def _fresh(self) -> bool:
-        return (self._connected and self._received_s is not None
-                and self._clock() - self._received_s <= self.cfg.manual_timeout_s)
+        return self._connected and self._received_lately()
 
     def _lost_reason(self) -> str | None:
         """Why the person's input is missing now (None while it is fresh)."""

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from companion.config import PilotConfig
-from companion.inputs.base import HumanCommand, HumanInput
+from companion.inputs.base import FedInput, HumanCommand
 from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
@@ -68,15 +67,11 @@ def button_held(fields: Mapping[str, Any], bit: int) -> bool:
         return False
 
 
-class ManualControlInput(HumanInput):
+class ManualControlInput(FedInput):
     """The latest MANUAL_CONTROL as a HumanCommand; thread-safe between feed and read."""
 
     def __init__(self, cfg: PilotConfig, clock: Callable[[], float] = time.monotonic) -> None:
-        self.cfg = cfg
-        self._clock = clock
-        self._lock = threading.Lock()
-        self._latest = HumanCommand.neutral()
-        self._received_s: float | None = None
+        super().__init__(cfg, clock)
         self._stale_warned = False
         self._counts = ManualControlCounts()
 
@@ -122,11 +117,7 @@ class ManualControlInput(HumanInput):
     def read(self, obs: Observation | None = None) -> HumanCommand:
         """The latest command, or neutral without override when it is older than the timeout."""
         with self._lock:
-            fresh = (
-                self._received_s is not None
-                and self._clock() - self._received_s <= self.cfg.manual_timeout_s
-            )
-            if fresh:
+            if self._received_lately():
                 return self._latest
             if self._received_s is not None:
                 if not self._stale_warned:
