@@ -1,4 +1,5 @@
-"""Tests of the pilot console; ``stop`` ends a ``col console`` process a test started."""
+"""Tests of the pilot console; ``start_col`` starts a ``col console`` (or ``col study``) process,
+``stop`` ends it."""
 
 from __future__ import annotations
 
@@ -13,9 +14,15 @@ REPO = Path(__file__).resolve().parents[2]
 def start_console(run_dir: Path, log: Path, *extra: str) -> tuple[subprocess.Popen[bytes], str]:
     """``col console`` on a free port writing to ``run_dir`` (its log in ``log``): the process and
     the URL it printed."""
+    return start_col(log, "console", "--port", "0", "--run-dir", str(run_dir), *extra)
+
+
+def start_col(log: Path, *args: str) -> tuple[subprocess.Popen[bytes], str]:
+    """``col ARGS``, a command that serves the console's page (its log in ``log``): the process and
+    the URL it printed."""
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir),
-                             *extra], stdout=subprocess.PIPE, stderr=log.open("ab"), env=env, cwd=REPO)
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", *args], stdout=subprocess.PIPE,
+                            stderr=log.open("ab"), env=env, cwd=REPO)
     assert proc.stdout is not None
     line = proc.stdout.readline().decode()
     if not line.startswith("CONSOLE "):

@@ -6,21 +6,20 @@ in ``human.csv``, tagged as interventions."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
 import shutil
-import subprocess
-import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from companion.simulator import SimulatorClient
-from tests.console import stop
+from tests.console import start_console, stop
 
-REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = os.environ.get("COL_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -55,18 +54,30 @@ def _browser_or_skip() -> None:
     pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install '.[test]')")
 
 
+@contextlib.contextmanager
+def chromium(profile: Path, extra: Sequence[str] = ()) -> Iterator[Any]:
+    """Headless chromium with its own profile folder (``extra``: more command-line switches) as a
+    Playwright browser context, closed after the block; the test is skipped without chromium."""
+    _browser_or_skip()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        context = pw.chromium.launch_persistent_context(str(profile), executable_path=CHROMIUM, headless=True,
+                                                        args=[*CHROMIUM_ARGS, *extra],
+                                                        viewport={"width": 1280, "height": 900})
+        try:
+            yield context
+        finally:
+            context.close()
+
+
 @pytest.fixture
 def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     """A running ``col console`` on a free port: (its URL, its run folder)."""
     run_dir = tmp_path / "run"
-    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir)],
-                            stdout=subprocess.PIPE, stderr=(tmp_path / "console.log").open("wb"), env=env, cwd=REPO)
+    proc, url = start_console(run_dir, tmp_path / "console.log")
     try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().decode()
-        assert line.startswith("CONSOLE http://127.0.0.1:"), f"no URL from col console: {line!r} " + (tmp_path / "console.log").read_text()
-        yield line.split()[1], run_dir
+        yield url, run_dir
     finally:
         stop(proc)
         print((tmp_path / "console.log").read_text()[-6000:])  # shown when the test fails
@@ -87,71 +98,62 @@ def _forward_ne(yaw_rad: float) -> tuple[float, float]:
 
 
 def test_a_person_in_the_browser_intervenes_and_exactly_their_steps_are_recorded(console, tmp_path: Path) -> None:
-    _browser_or_skip()
-    from playwright.sync_api import sync_playwright
-
     url, run_dir = console
-    with sync_playwright() as pw:
-        context = pw.chromium.launch_persistent_context(
-            str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS,
-            viewport={"width": 1280, "height": 900})
+    with chromium(tmp_path / "profile") as context:
+        page = context.pages[0] if context.pages else context.new_page()
+        page.add_init_script(FAKE_PAD)
+        page.goto(url)
+        _wait(page, "window.colConsole.hello !== null", 20)
+        page.click("#take-role")  # this page asks to be the pilot and is told it is
+        _wait(page, "window.colConsole.role.role === 'pilot'", 10)
+        assert "gamepad: Emulated Xbox pad" in page.inner_text("#pad-state")
+
+        # as a person would: choose Int, one episode, press Start
+        page.select_option("#condition", "int")
+        page.fill("#episodes", "1")
+        page.click("#start")
+        _wait(page, "window.colConsole.lastStep !== null && window.colConsole.lastStep.step >= 5", 90)
+        step = page.evaluate("window.colConsole.lastStep")
+        assert step["phase"] == "intervention" and step["who"] == "policy"
+
+        frames0 = page.evaluate("window.colConsole.framesDrawn")
+        # the video keeps coming (its rate is bench/console.py's figure, not a test's)
+        _wait(page, f"window.colConsole.framesDrawn >= {frames0 + 10}", 30)
+
+        sim = SimulatorClient(*page.evaluate("window.colConsole.status.simulator").split(":"))
         try:
-            page = context.pages[0] if context.pages else context.new_page()
-            page.add_init_script(FAKE_PAD)
-            page.goto(url)
-            _wait(page, "window.colConsole.hello !== null", 20)
-            page.click("#take-role")  # this page asks to be the pilot and is told it is
-            _wait(page, "window.colConsole.role.role === 'pilot'", 10)
-            assert "gamepad: Emulated Xbox pad" in page.inner_text("#pad-state")
-
-            # as a person would: choose Int, one episode, press Start
-            page.select_option("#condition", "int")
-            page.fill("#episodes", "1")
-            page.click("#start")
-            _wait(page, "window.colConsole.lastStep !== null && window.colConsole.lastStep.step >= 5", 90)
-            step = page.evaluate("window.colConsole.lastStep")
-            assert step["phase"] == "intervention" and step["who"] == "policy"
-
-            frames0 = page.evaluate("window.colConsole.framesDrawn")
-            # the video keeps coming (its rate is bench/console.py's figure, not a test's)
-            _wait(page, f"window.colConsole.framesDrawn >= {frames0 + 10}", 30)
-
-            sim = SimulatorClient(*page.evaluate("window.colConsole.status.simulator").split(":"))
-            try:
-                before = sim.truth()
-                # right stick forward (y = -0.8 is up) with the right trigger held
-                page.evaluate("window.__pad.axes[3] = -0.8; window.__pad.buttons[7] = 1.0")
-                _wait(page, "window.colConsole.lastStep.who === 'person'", 10)
-                first = page.evaluate("window.colConsole.lastStep")
-                # 30 control steps and 3 s of the vehicle's own time on the person's stick, however
-                # long a busy machine takes to fly them (a starved SITL's clock runs slow; a step on
-                # its stale telemetry holds and is neither shown nor recorded)
-                _wait(page, f"(() => {{ const p = window.colConsole.steps.filter((s) => s.who === 'person'"
-                            f" && s.step >= {first['step']}); return p.length >= 30"
-                            f" && p[p.length - 1].timeBootMs - {first['time_boot_ms']} >= 3000; }})()", 120)
-                after = sim.truth()
-                shot(page, tmp_path, "console_intervening.png")
-                page.evaluate("window.__pad.axes[3] = 0; window.__pad.buttons[7] = 0")
-                _wait(page, "window.colConsole.lastStep.who === 'policy'", 10)
-            finally:
-                sim.close()
-            yaw = before["attitude_rad"][2]
-            fwd = _forward_ne(yaw)
-            dn = after["vehicle_ned"][0] - before["vehicle_ned"][0]
-            de = after["vehicle_ned"][1] - before["vehicle_ned"][1]
-            along, across = dn * fwd[0] + de * fwd[1], -dn * fwd[1] + de * fwd[0]
-            assert along > 1.5, (f"pushed forward for 3 s of the vehicle's time but moved only {along:.2f} m forward "
-                                 f"({dn:.2f} N, {de:.2f} E)")
-            assert abs(across) < 0.5 * along
-
-            page.click("#stop")
-            _wait(page, "window.colConsole.status.run.state === 'finished'", 60)
-            _wait(page, "window.colConsole.records.length === 1", 10)
-            seen = page.evaluate("window.colConsole.steps")
-            record = page.evaluate("window.colConsole.records[0]")
-            shot(page, tmp_path, "console_finished.png")
+            before = sim.truth()
+            # right stick forward (y = -0.8 is up) with the right trigger held
+            page.evaluate("window.__pad.axes[3] = -0.8; window.__pad.buttons[7] = 1.0")
+            _wait(page, "window.colConsole.lastStep.who === 'person'", 10)
+            first = page.evaluate("window.colConsole.lastStep")
+            # 30 control steps and 3 s of the vehicle's own time on the person's stick, however
+            # long a busy machine takes to fly them (a starved SITL's clock runs slow; a step on
+            # its stale telemetry holds and is neither shown nor recorded)
+            _wait(page, f"(() => {{ const p = window.colConsole.steps.filter((s) => s.who === 'person'"
+                        f" && s.step >= {first['step']}); return p.length >= 30"
+                        f" && p[p.length - 1].timeBootMs - {first['time_boot_ms']} >= 3000; }})()", 120)
+            after = sim.truth()
+            shot(page, tmp_path, "console_intervening.png")
+            page.evaluate("window.__pad.axes[3] = 0; window.__pad.buttons[7] = 0")
+            _wait(page, "window.colConsole.lastStep.who === 'policy'", 10)
         finally:
-            context.close()
+            sim.close()
+        yaw = before["attitude_rad"][2]
+        fwd = _forward_ne(yaw)
+        dn = after["vehicle_ned"][0] - before["vehicle_ned"][0]
+        de = after["vehicle_ned"][1] - before["vehicle_ned"][1]
+        along, across = dn * fwd[0] + de * fwd[1], -dn * fwd[1] + de * fwd[0]
+        assert along > 1.5, (f"pushed forward for 3 s of the vehicle's time but moved only {along:.2f} m forward "
+                             f"({dn:.2f} N, {de:.2f} E)")
+        assert abs(across) < 0.5 * along
+
+        page.click("#stop")
+        _wait(page, "window.colConsole.status.run.state === 'finished'", 60)
+        _wait(page, "window.colConsole.records.length === 1", 10)
+        seen = page.evaluate("window.colConsole.steps")
+        record = page.evaluate("window.colConsole.records[0]")
+        shot(page, tmp_path, "console_finished.png")
 
     person_steps = sorted(s["step"] for s in seen if s["who"] == "person")
     assert person_steps, "the page never showed the person flying"

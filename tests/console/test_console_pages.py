@@ -15,13 +15,7 @@ from aiohttp import web
 from colcommon.frames import Frame
 from companion.console.frames import encode_for_page
 from companion.console.server import ConsoleServer
-from tests.console.test_console_browser import (
-    CHROMIUM,
-    CHROMIUM_ARGS,
-    _browser_or_skip,
-    _wait,
-    shot,
-)
+from tests.console.test_console_browser import _wait, chromium, shot
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(180)]
 
@@ -52,31 +46,19 @@ class Served:
         self.thread.join(30)
 
 
-def _browser(pw, tmp_path: Path, extra: list[str] | None = None):  # type: ignore[no-untyped-def]
-    return pw.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True,
-                                                 args=CHROMIUM_ARGS + (extra or []), viewport={"width": 1280, "height": 900})
-
-
 def test_a_page_reached_through_a_rebound_name_is_refused(served: Served, tmp_path: Path) -> None:
-    _browser_or_skip()
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:  # attacker.example resolves to 127.0.0.1, as a rebinding DNS makes it
-        context = _browser(pw, tmp_path, ["--host-resolver-rules=MAP attacker.example 127.0.0.1"])
-        try:
-            page = context.new_page()
-            response = page.goto(f"http://attacker.example:{served.port}/")
-            assert response is not None and response.status == 403
-            assert "answers to its own names only" in page.inner_text("body")
-            opened = page.evaluate(f"""() => new Promise((done) => {{
-                const ws = new WebSocket("ws://attacker.example:{served.port}/ws");
-                ws.onopen = () => done("open"); ws.onerror = () => done("refused"); }})""")
-            assert opened == "refused" and not served.server.clients
-            own = context.new_page()
-            own.goto(f"http://127.0.0.1:{served.port}/")
-            _wait(own, "window.colConsole.hello !== null", 20)
-        finally:
-            context.close()
+    with chromium(tmp_path / "profile", ["--host-resolver-rules=MAP attacker.example 127.0.0.1"]) as context:  # attacker.example resolves to 127.0.0.1, as a rebinding DNS makes it
+        page = context.new_page()
+        response = page.goto(f"http://attacker.example:{served.port}/")
+        assert response is not None and response.status == 403
+        assert "answers to its own names only" in page.inner_text("body")
+        opened = page.evaluate(f"""() => new Promise((done) => {{
+            const ws = new WebSocket("ws://attacker.example:{served.port}/ws");
+            ws.onopen = () => done("open"); ws.onerror = () => done("refused"); }})""")
+        assert opened == "refused" and not served.server.clients
+        own = context.new_page()
+        own.goto(f"http://127.0.0.1:{served.port}/")
+        _wait(own, "window.colConsole.hello !== null", 20)
 
 
 def _frame(n: int) -> bytes:
@@ -86,28 +68,21 @@ def _frame(n: int) -> bytes:
 
 
 def test_the_video_says_when_frames_stop_and_when_no_run_flies(served: Served, tmp_path: Path) -> None:
-    _browser_or_skip()
-    from playwright.sync_api import sync_playwright
-
     session = served.server.session
-    with sync_playwright() as pw:
-        context = _browser(pw, tmp_path)
-        try:
-            page = context.new_page()
-            page.goto(f"http://127.0.0.1:{served.port}/")
-            _wait(page, "window.colConsole.hello !== null", 20)
-            assert page.evaluate("window.colConsole.videoState") == "no-video"
-            session._run.state = "running"  # a run as the page sees it (status 4 times a second)
-            _wait(page, "window.colConsole.status.run.state === 'running'", 20)
-            for n in range(3):  # one at a time: a page is sent only the newest frame waiting for it
-                served.server.publish_frame(_frame(n))
-                _wait(page, f"window.colConsole.framesDrawn === {n + 1}", 20)
-            page.evaluate("window.colConsole.clockOffsetMs = 0")  # frames now stop arriving
-            _wait(page, "window.colConsole.videoState === 'stale'", 30)
-            shot(page, tmp_path, "console_stale.png")
-            served.server.publish_frame(_frame(3))
-            _wait(page, "window.colConsole.videoState === 'live'", 20)
-            session._run.state = "finished"
-            _wait(page, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 20)
-        finally:
-            context.close()
+    with chromium(tmp_path / "profile") as context:
+        page = context.new_page()
+        page.goto(f"http://127.0.0.1:{served.port}/")
+        _wait(page, "window.colConsole.hello !== null", 20)
+        assert page.evaluate("window.colConsole.videoState") == "no-video"
+        session._run.state = "running"  # a run as the page sees it (status 4 times a second)
+        _wait(page, "window.colConsole.status.run.state === 'running'", 20)
+        for n in range(3):  # one at a time: a page is sent only the newest frame waiting for it
+            served.server.publish_frame(_frame(n))
+            _wait(page, f"window.colConsole.framesDrawn === {n + 1}", 20)
+        page.evaluate("window.colConsole.clockOffsetMs = 0")  # frames now stop arriving
+        _wait(page, "window.colConsole.videoState === 'stale'", 30)
+        shot(page, tmp_path, "console_stale.png")
+        served.server.publish_frame(_frame(3))
+        _wait(page, "window.colConsole.videoState === 'live'", 20)
+        session._run.state = "finished"
+        _wait(page, "window.colConsole.videoState === 'idle' && window.colConsole.hudState === 'idle'", 20)

@@ -8,40 +8,18 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from companion.learning.dataset import HumanDataset
-from tests.console import stop
-from tests.console.test_console_browser import (
-    CHROMIUM,
-    CHROMIUM_ARGS,
-    FAKE_PAD,
-    REPO,
-    _browser_or_skip,
-    _wait,
-    shot,
-)
+from tests.console import start_console, stop
+from tests.console.test_console_browser import FAKE_PAD, _browser_or_skip, _wait, chromium, shot
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(1500)]
 PITCH = 0.3  # the good stick before the pad breaks: every recorded row must carry exactly it
-
-
-def _console(run_dir: Path, log: Path) -> tuple[subprocess.Popen[bytes], str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "console", "--port", "0", "--run-dir", str(run_dir),
-                             "--no-pictures", "-v"], stdout=subprocess.PIPE, stderr=log.open("ab"), env=env, cwd=REPO)
-    assert proc.stdout is not None
-    line = proc.stdout.readline().decode()
-    assert line.startswith("CONSOLE http://127.0.0.1:"), log.read_text()
-    return proc, line.split()[1]
 
 
 def _open(context, url: str):  # type: ignore[no-untyped-def]
@@ -119,21 +97,13 @@ def _the_flagged_demonstration(a, tmp_path: Path) -> dict:  # type: ignore[no-un
     return record
 
 
-def _browser(pw: Any, profile: Path) -> Any:
-    """Headless chromium with its own profile folder (a fresh one per console start)."""
-    return pw.chromium.launch_persistent_context(str(profile), executable_path=CHROMIUM, headless=True,
-                                                 args=CHROMIUM_ARGS, viewport={"width": 1280, "height": 900})
-
-
 def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart(tmp_path: Path) -> None:
-    _browser_or_skip()
-    from playwright.sync_api import sync_playwright
+    _browser_or_skip()  # before the console starts
 
     run_dir, log = tmp_path / "run", tmp_path / "console.log"
-    proc, url = _console(run_dir, log)
+    proc, url = start_console(run_dir, log, "--no-pictures", "-v")
     try:
-        with sync_playwright() as pw:
-            context = _browser(pw, tmp_path / "profile")
+        with chromium(tmp_path / "profile") as context:
             try:
                 a = _two_tabs_and_a_broken_pad(context, url, tmp_path)
                 seen = a.evaluate("window.colConsole.steps")
@@ -146,8 +116,6 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
                 proc.send_signal(signal.SIGUSR1)
                 time.sleep(1.0)
                 raise
-            finally:
-                context.close()
     finally:
         stop(proc)
         print(log.read_text()[-20000:])  # pytest shows it when the test fails: what the console logged
@@ -173,18 +141,14 @@ def test_two_tabs_bad_sticks_a_discarded_episode_and_the_history_after_a_restart
     with HumanDataset(run_dir / "human.csv") as ds:  # ... and out of training
         assert len(ds) == len(ep0)
 
-    proc, url = _console(run_dir, log)  # the console restarted on the same folder
+    proc, url = start_console(run_dir, log, "--no-pictures", "-v")  # the console restarted on the same folder
     try:
-        with sync_playwright() as pw:
-            context = _browser(pw, tmp_path / "profile2")
-            try:
-                page = _open(context, url)
-                records = page.evaluate("window.colConsole.records")
-                assert [r["episode"] for r in records] == [0, 1] and records[1]["discarded"]
-                assert "discarded" in page.inner_text("#episodes-table")
-                _wait(page, "window.colConsole.videoState === 'no-video'", 10)
-                shot(page, tmp_path, "console_history.png")
-            finally:
-                context.close()
+        with chromium(tmp_path / "profile2") as context:
+            page = _open(context, url)
+            records = page.evaluate("window.colConsole.records")
+            assert [r["episode"] for r in records] == [0, 1] and records[1]["discarded"]
+            assert "discarded" in page.inner_text("#episodes-table")
+            _wait(page, "window.colConsole.videoState === 'no-video'", 10)
+            shot(page, tmp_path, "console_history.png")
     finally:
         stop(proc)

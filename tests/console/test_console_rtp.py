@@ -16,7 +16,7 @@ from companion.config import CompanionConfig
 from companion.console.session import ConsoleOptions, ConsoleSession
 from sitl.rtp import sdp_for
 from tests.conftest import free_port
-from tests.console.test_console_browser import REPO
+from tests.console import REPO
 from tests.sitl.test_rtp_video import receive
 
 pytestmark = [pytest.mark.realtime, pytest.mark.timeout(120)]

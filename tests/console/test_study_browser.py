@@ -6,38 +6,23 @@ answered or skipped after each, the study folder as the grid's report reads it."
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from companion.experiment.report import write_report
 from companion.experiment.results import ResultsFile
-from tests.console import stop
+from tests.console import REPO, start_col, stop
 from tests.console.test_console_browser import (
     CHROMIUM,
     CHROMIUM_ARGS,
     FAKE_PAD,
-    REPO,
     _browser_or_skip,
     _wait,
     shot,
 )
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(1500)]
-
-
-def _study(out: Path, config: Path, log: Path) -> tuple[subprocess.Popen[bytes], str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "study", "--participant", "S01", "--out", str(out),
-                             "--config", str(config), "--interactions", "2", "--practice", "1", "--port", "0", "-v"],
-                            stdout=subprocess.PIPE, stderr=log.open("ab"), env=env, cwd=REPO)
-    assert proc.stdout is not None
-    line = proc.stdout.readline().decode()
-    assert line.startswith("CONSOLE http://127.0.0.1:"), log.read_text()
-    return proc, line.split()[1]
 
 
 def _block(page, condition: str, episodes: int) -> None:  # type: ignore[no-untyped-def]
@@ -63,7 +48,8 @@ def test_one_participant_flies_the_study_and_it_is_written_as_the_grid_writes(tm
     config = tmp_path / "study.toml"  # the paper's task and learner, 2 held-out starts a trial
     config.write_text((REPO / "configs" / "paper.toml").read_text().replace("eval_runs = 100", "eval_runs = 2"))
     out, log = tmp_path / "S01", tmp_path / "study.log"
-    proc, url = _study(out, config, log)
+    proc, url = start_col(log, "study", "--participant", "S01", "--out", str(out), "--config", str(config),
+                          "--interactions", "2", "--practice", "1", "--port", "0", "-v")
     try:
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
