@@ -4,8 +4,11 @@ refused requests (each logged, none closing the socket), and the one pilot role.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from aiohttp import WSMsgType
@@ -42,6 +45,27 @@ async def _next_of(ws, kind: str, timeout_s: float = 20.0) -> dict:  # type: ign
     return await asyncio.wait_for(find(), timeout_s)
 
 
+@contextlib.asynccontextmanager
+async def _client(server: ConsoleServer) -> AsyncIterator[TestClient]:
+    """A client of ``server``, served on a free loopback port for the block."""
+    async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+        yield client
+
+
+async def _take_pilot(ws) -> dict:  # type: ignore[no-untyped-def]
+    """Ask for the pilot role on the socket ``ws``: the role message that answers."""
+    await ws.send_json(PILOT)
+    return await _next_of(ws, "role")
+
+
+@contextlib.asynccontextmanager
+async def _pilot_socket(server: ConsoleServer) -> AsyncIterator[tuple[Any, dict]]:
+    """A page's socket to ``server`` that has taken the pilot role, and the role message."""
+    async with _client(server) as client:
+        ws = await client.ws_connect("/ws")
+        yield ws, await _take_pilot(ws)
+
+
 async def _files(client: TestClient) -> None:
     page = await client.get("/")
     assert page.status == 200 and "pilot console" in await page.text()
@@ -53,7 +77,7 @@ async def _files(client: TestClient) -> None:
 async def _scenario(tmp_path: Path) -> None:
     server = make_server(tmp_path)
     human = server.session.human
-    async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
+    async with _client(server) as client:
         await _files(client)
         first = await client.ws_connect("/ws")
         hello = await _next_of(first, "hello")
@@ -67,8 +91,7 @@ async def _scenario(tmp_path: Path) -> None:
         assert "only the pilot" in (await _next_of(first, "error"))["message"]
         assert human.status().messages == 0 and not server.session.running
 
-        await first.send_json(PILOT)
-        role = await _next_of(first, "role")
+        role = await _take_pilot(first)
         assert role["role"] == "pilot" and role["pilot_page"] == role["page"]
         for bad, why in [({"type": "command", "name": "start", "condition": "eval", "episodes": 1}, "condition"),
                          ({"type": "command", "name": "start", "condition": "col", "episodes": 0}, "episodes"),
@@ -110,8 +133,7 @@ async def _scenario(tmp_path: Path) -> None:
         notice = await _next_of(third, "notice")
         assert notice.get("pilot_lost") and "holds position" in notice["text"]
         assert (await _next_of(third, "role"))["pilot_page"] is None
-        await third.send_json(PILOT)  # now another page may take the role
-        assert (await _next_of(third, "role"))["role"] == "pilot"
+        assert (await _take_pilot(third))["role"] == "pilot"  # now another page may take the role
         await third.send_json({"type": "role", "want": "watch"})  # and give it up
         assert (await _next_of(third, "role"))["role"] == "watch" and server.pilot is None
         await third.close()
@@ -132,10 +154,7 @@ def test_malformed_messages_are_logged_refused_and_keep_the_socket(tmp_path: Pat
                                                                   caplog: pytest.LogCaptureFixture) -> None:
     async def scenario() -> None:
         server = make_server(tmp_path)
-        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
-            ws = await client.ws_connect("/ws")
-            await ws.send_json(PILOT)
-            await _next_of(ws, "role")
+        async with _pilot_socket(server) as (ws, _):
             await ws.send_str(text)
             assert why in (await _next_of(ws, "error"))["message"]
             await ws.send_bytes(b"\x00\x01")
@@ -163,10 +182,7 @@ def test_a_pad_that_is_not_a_pad_is_refused_and_every_refusal_is_counted(tmp_pat
     async def scenario() -> None:
         server = make_server(tmp_path)
         human = server.session.human
-        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
-            ws = await client.ws_connect("/ws")
-            await ws.send_json(PILOT)
-            await _next_of(ws, "role")
+        async with _pilot_socket(server) as (ws, _):
             two_axes = {**INPUT, "axes": [0, -0.5]}  # a pad with one stick, trigger held
             await ws.send_json(two_axes)
             first = await _next_of(ws, "error")
@@ -194,11 +210,8 @@ def test_the_inputs_status_names_how_the_pilot_left(tmp_path: Path) -> None:
     async def scenario() -> None:
         server = make_server(tmp_path)
         human = server.session.human
-        async with TestServer(server.app, host="127.0.0.1") as ts, TestClient(ts) as client:
-            ws = await client.ws_connect("/ws")
-            page = (await _next_of(ws, "hello"))["role"]["page"]
-            await ws.send_json(PILOT)
-            await _next_of(ws, "role")
+        async with _pilot_socket(server) as (ws, role):
+            page = role["page"]
             await ws.send_json(INPUT)  # the trigger held
             assert await _until(lambda: human.status().messages == 1)
             await ws.send_json({"type": "role", "want": "watch"})  # the pilot gives the role up
@@ -208,8 +221,7 @@ def test_the_inputs_status_names_how_the_pilot_left(tmp_path: Path) -> None:
             assert human.status().hold_reason == f"the pilot (page {page}) gave up the role while the person held the override"
             assert server.session.status()["input"]["hold_reason"] == human.status().hold_reason
 
-            await ws.send_json(PILOT)  # back, and then its link drops
-            await _next_of(ws, "role")
+            await _take_pilot(ws)  # back, and then its link drops
             await ws.send_json(INPUT)
             assert await _until(lambda: human.status().messages == 2)
             await ws.close()
