@@ -14,6 +14,13 @@ from sitl.config import SitlConfig, load_sitl_config
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
+def _toml(tmp_path: Path, text: str, name: str = "c.toml") -> Path:
+    """A config file holding ``text`` in the test's folder."""
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
 def test_default_toml_is_exactly_the_built_in_defaults() -> None:
     assert load_sitl_config(CONFIGS / "default.toml") == SitlConfig()
     assert load_companion_config(CONFIGS / "default.toml") == CompanionConfig()
@@ -26,37 +33,27 @@ def test_every_shipped_preset_loads(path: Path) -> None:
 
 
 def test_unknown_key_names_the_key(tmp_path: Path) -> None:
-    f = tmp_path / "c.toml"
-    f.write_text("[companion.learner]\nlearning_rat = 0.1\n")
     with pytest.raises(ConfigError, match="learner.learning_rat"):
-        load_companion_config(f)
+        load_companion_config(_toml(tmp_path, "[companion.learner]\nlearning_rat = 0.1\n"))
 
 
 def test_wrong_type_and_range_are_explained(tmp_path: Path) -> None:
-    f = tmp_path / "c.toml"
-    f.write_text('[sitl.clock]\nspeed = -3\nmode = "fast"\n')
     with pytest.raises(ConfigError) as info:
-        load_sitl_config(f)
+        load_sitl_config(_toml(tmp_path, '[sitl.clock]\nspeed = -3\nmode = "fast"\n'))
     assert "clock.speed" in str(info.value) and "clock.mode" in str(info.value)
 
 
 def test_missing_file_bad_toml_and_unknown_table(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="does not exist"):
         load_companion_config(tmp_path / "nope.toml")
-    bad = tmp_path / "bad.toml"
-    bad.write_text("[sitl\n")
     with pytest.raises(ConfigError, match="not valid TOML"):
-        load_sitl_config(bad)
-    extra = tmp_path / "extra.toml"
-    extra.write_text("[drone]\nx = 1\n")
+        load_sitl_config(_toml(tmp_path, "[sitl\n", "bad.toml"))
     with pytest.raises(ConfigError, match="unknown top-level"):
-        load_companion_config(extra)
+        load_companion_config(_toml(tmp_path, "[drone]\nx = 1\n", "extra.toml"))
 
 
 def test_partial_file_keeps_other_defaults(tmp_path: Path) -> None:
-    f = tmp_path / "c.toml"
-    f.write_text("[companion.session]\nmax_steps = 50\n")
-    cfg = load_companion_config(f)
+    cfg = load_companion_config(_toml(tmp_path, "[companion.session]\nmax_steps = 50\n"))
     assert cfg.session.max_steps == 50
     assert cfg.learner == CompanionConfig().learner
 
@@ -70,9 +67,7 @@ def test_sitl_command_line_overrides_are_validated() -> None:
 
 def test_telemetry_slower_than_twice_the_control_rate_is_refused(tmp_path) -> None:
     """Steps need telemetry newer than the last step's: a slower stream would hold by design."""
-    path = tmp_path / "slow.toml"
-    path.write_text("[companion.link]\ntelemetry_rate_hz = 15.0\n")
     with pytest.raises(ConfigError, match="telemetry_rate_hz = 15 is below 2 x the control rate"):
-        load_companion_config(path)
-    path.write_text("[companion.link]\ntelemetry_rate_hz = 0.0\n")  # the vehicle's own rates: allowed
-    assert load_companion_config(path).link.telemetry_rate_hz == 0.0
+        load_companion_config(_toml(tmp_path, "[companion.link]\ntelemetry_rate_hz = 15.0\n"))
+    allowed = _toml(tmp_path, "[companion.link]\ntelemetry_rate_hz = 0.0\n")  # the vehicle's own rates
+    assert load_companion_config(allowed).link.telemetry_rate_hz == 0.0
