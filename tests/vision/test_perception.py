@@ -37,8 +37,13 @@ def view(renderer: CameraRenderer, dn: float, de: float, h: float, attitude=(0.0
     return renderer.render(camera, attitude, 0.0), renderer.project(pad, camera, attitude), radius
 
 
-def assert_close(found: PadDetection | None, centre, radius: float, centre_px: float, radius_rel: float) -> None:
+def assert_close(found: PadDetection | None, centre, radius: float, centre_px: float, radius_rel: float,
+                 partial: bool | None = None) -> None:
+    """Found within ``centre_px`` of the centre and ``radius_rel`` of the radius (and, unless
+    ``partial`` is None, found partial or whole as it says)."""
     assert found is not None, "pad not found"
+    if partial is not None:
+        assert found.partial == partial
     assert math.hypot(found.u_px - centre[0], found.v_px - centre[1]) <= centre_px
     assert abs(found.radius_px - radius) <= radius_rel * radius
 
@@ -54,9 +59,7 @@ def assert_close(found: PadDetection | None, centre, radius: float, centre_px: f
 )
 def test_fully_visible_pad_is_found_to_a_pixel(renderer, detector, dn, de, h, attitude) -> None:
     image, centre, radius = view(renderer, dn, de, h, attitude)
-    found = detector.detect(image)
-    assert_close(found, centre, radius, centre_px=1.0, radius_rel=0.05)
-    assert not found.partial
+    assert_close(detector.detect(image), centre, radius, centre_px=1.0, radius_rel=0.05, partial=False)
 
 
 @pytest.mark.parametrize("gain", [0.35, 0.6, 1.5, 2.0])
@@ -89,10 +92,7 @@ def test_sensor_noise(renderer, detector, rng) -> None:
 def test_partial_pad_with_dot_in_view_keeps_the_centre(renderer, detector) -> None:
     # Pad 1.5 m west at 2 m: centre at u = 39.5, radius 40 px -> cut by the left border.
     image, centre, radius = view(renderer, 0.0, 1.5, 2.0)
-    found = detector.detect(image)
-    assert found is not None and found.partial
-    assert math.hypot(found.u_px - centre[0], found.v_px - centre[1]) <= 1.0
-    assert abs(found.radius_px - radius) <= 0.1 * radius
+    assert_close(detector.detect(image), centre, radius, centre_px=1.0, radius_rel=0.1, partial=True)
 
 
 def test_partial_pad_centre_outside_the_image_comes_from_the_rim(renderer, detector) -> None:
@@ -100,19 +100,14 @@ def test_partial_pad_centre_outside_the_image_comes_from_the_rim(renderer, detec
     image, centre, radius = view(renderer, 0.0, 2.125, 2.0)
     assert centre[0] < 0
     found = detector.detect(image)
-    assert found is not None and found.partial
-    assert found.u_px < 0
-    assert math.hypot(found.u_px - centre[0], found.v_px - centre[1]) <= 3.0
-    assert abs(found.radius_px - radius) <= 0.1 * radius
+    assert_close(found, centre, radius, centre_px=3.0, radius_rel=0.1, partial=True)
+    assert found is not None and found.u_px < 0
 
 
 def test_dot_cut_by_the_border_does_not_bend_the_rim_fit(renderer, detector) -> None:
     # Pad centre at u = 5 px: the dot (8 px) is cut by the border and its edge joins the outline.
     image, centre, radius = view(renderer, 0.0, 1.93, 2.0)
-    found = detector.detect(image)
-    assert found is not None and found.partial
-    assert math.hypot(found.u_px - centre[0], found.v_px - centre[1]) <= 2.0
-    assert abs(found.radius_px - radius) <= 0.05 * radius
+    assert_close(detector.detect(image), centre, radius, centre_px=2.0, radius_rel=0.05, partial=True)
 
 
 @pytest.mark.parametrize(("dn", "de", "h"), [(6.0, 0.0, 3.0), (0.0, -9.0, 6.0), (-15.0, 12.0, 8.0), (30.0, 30.0, 1.0)])
