@@ -35,7 +35,7 @@ from companion.link.telemetry import (
     is_vehicle_heartbeat,
 )
 from companion.link.tlog import TlogWriter
-from companion.link.waiters import Waiters
+from companion.link.waiters import Waiters, wait_until
 from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
@@ -120,16 +120,12 @@ class MavlinkIO:
 
         ``on_loss`` is called (and may raise) when the link is lost while waiting.
         """
-        deadline = self._clock() + timeout_s
-        with self._changed:
-            while not ready(self.snapshot):
-                remaining = deadline - self._clock()
-                if remaining <= 0 or self.closed:
-                    return None
-                if on_loss is not None and not self.alive():
-                    on_loss()
-                self._changed.wait(min(remaining, 0.05))
-            return self.snapshot
+        def check_link() -> None:
+            if on_loss is not None and not self.alive():
+                on_loss()
+
+        return wait_until(self._changed, lambda: self.snapshot, ready, timeout_s, self._clock,
+                          lambda: self.closed, check_link)
 
     # ================================================================ sending
     @property

@@ -48,6 +48,7 @@ from companion.link.mavsdk_convert import (
     route_mavsdk_log,
     translate_result,
 )
+from companion.link.waiters import wait_until
 from companion.msg.setpoint import VelocitySetpoint
 from companion.msg.snapshot import VehicleSnapshot
 
@@ -261,16 +262,12 @@ class MavsdkLink(VehicleLink):
         timeout_s: float,
         raise_on_loss: bool = False,
     ) -> VehicleSnapshot | None:
-        deadline = time.monotonic() + timeout_s
-        with self._changed:
-            while not ready(self._snapshot):
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._closed:
-                    return None
-                if raise_on_loss and not self.link_alive():
-                    raise self._lost_error()
-                self._changed.wait(min(remaining, 0.05))
-            return self._snapshot
+        def check_link() -> None:
+            if raise_on_loss and not self.link_alive():
+                raise self._lost_error()
+
+        return wait_until(self._changed, lambda: self._snapshot, ready, timeout_s, time.monotonic,
+                          lambda: self._closed, check_link)
 
     # ================================================================ commands
     def arm(self) -> None:
