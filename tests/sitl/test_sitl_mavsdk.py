@@ -9,13 +9,13 @@ companion's link, so that they check the SITL and nothing else.
 from __future__ import annotations
 
 import asyncio
-import logging
 from collections.abc import AsyncIterator, Callable, Iterator
 from contextlib import asynccontextmanager
 from typing import Any, TypeVar
 
 import pytest
 
+from companion.link.mavsdk_convert import route_mavsdk_log
 from companion.simulator import SitlProcess, start_sitl
 from tests.conftest import free_port
 
@@ -25,21 +25,6 @@ pytestmark = [pytest.mark.realtime, pytest.mark.e2e]
 
 SPEED = 2.0  # sim s per wall s: MAVSDK's wall-clock timeouts (3 s heartbeat) stay comfortable
 T = TypeVar("T")
-mavsdk_log = logging.getLogger("mavsdk")
-
-
-def _quiet_mavsdk() -> None:
-    """MAVSDK prints its log to stdout; send it to Python logging (pytest shows it on failure)."""
-    from mavsdk import LogLevel, log_subscribe
-
-    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
-              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}  # fmt: skip
-
-    def forward(level: Any, message: str, _file: str | None, _line: int) -> bool:
-        mavsdk_log.log(levels.get(level, logging.INFO), "%s", message)
-        return True
-
-    log_subscribe(forward)
 
 
 @pytest.fixture
@@ -76,7 +61,7 @@ async def connected_drone(port: int, timeout_s: float = 10.0) -> AsyncIterator[D
     from mavsdk.asyncio import Configuration, Mavsdk
     from mavsdk.component_type import ComponentType
 
-    _quiet_mavsdk()
+    route_mavsdk_log()  # MAVSDK prints its log to stdout: to Python logging (shown on failure)
     config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     async with Mavsdk(config) as mavsdk:
         await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
