@@ -4,7 +4,8 @@ They are prebuilt from upstream source (not installed by pip): the folder named 
 ``COL_AUTOPILOTS``, else ``shared/autopilots`` beside the checkout. :func:`find_autopilots`
 says where they are or why not; :func:`start_px4` and :func:`start_ardupilot` start one instance
 on ports of its own, in a fresh working folder, and return how the companion connects to it.
-Both run in real time only; stop them with :meth:`RunningAutopilot.stop` (a context manager).
+Both run in real time, or ``speedup`` times faster (wait on them by their own clock then:
+:mod:`companion.testing.vehicle_time`); stop them with :meth:`RunningAutopilot.stop` (a context manager).
 
 The PX4 build's ``bin/px4-<module>`` commands are symbolic links to ``px4`` upstream; a copy
 that lost the links (each file holds the text ``px4``) is repaired in the working folder, so

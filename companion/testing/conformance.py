@@ -6,6 +6,11 @@ vehicle says it has landed and disarms. It talks plain pymavlink, not the compan
 what it records is the vehicle's behaviour, not ours: the same script against real PX4 SIH and
 our SITL's PX4 personality (and real ArduCopter against our ArduPilot personality) gives the
 conformance table of docs/link.md.
+
+Every duration of the script (the descents, the waits for the climb and the disarm) and every time
+it reports counts the vehicle's seconds (:mod:`companion.testing.vehicle_time`), so the script
+means the same against an autopilot run faster than real time; only the waits for a command's
+ACK or a parameter's value, and the safety limits, are on the wall clock.
 """
 
 from __future__ import annotations
@@ -17,8 +22,12 @@ from typing import Any
 
 from pymavlink import mavutil
 
+from companion.testing.vehicle_time import VehicleClock, wall_cap_s
+
 M = mavutil.mavlink
 NAN = math.nan
+SETPOINT_PERIOD_S = 0.1  # of the vehicle's time: 10 Hz however fast it runs
+READ_S = 0.02  # wall: the longest a read blocks, so a fast vehicle's time is followed closely
 SLOW_DESCENT_M_S = 0.26
 FAST_DESCENT_M_S = 0.33
 TAKEOFF_ALT_M = 2.5
@@ -30,7 +39,7 @@ MODES = {  # (take-off mode, offboard mode) as pymavlink names them
 
 @dataclass
 class Outcome:
-    """What the vehicle did at each step of the script (ACK result names, seconds)."""
+    """What the vehicle did at each step of the script (ACK result names, seconds of the vehicle's time)."""
 
     autopilot: str = ""
     land_param: dict[str, float | None] = field(default_factory=dict)
@@ -64,13 +73,16 @@ class Script:
         self.armed = False
         self.mode = ""
         self.home_z: float | None = None
+        self.clock = VehicleClock()
 
     # ----- plumbing ---------------------------------------------------------------------------
-    def _pump(self, seconds: float, until: Any = None) -> Any:
-        """Read messages for up to ``seconds``; return the first for which ``until`` is true."""
-        deadline = time.monotonic() + seconds
-        while (left := deadline - time.monotonic()) > 0:
-            msg = self.mav.recv_match(blocking=True, timeout=min(left, 0.2))
+    def _pump(self, seconds: float, until: Any = None, wall: bool = False) -> Any:
+        """Read messages for up to ``seconds`` of the vehicle's time (``wall``: of the wall clock,
+        for an ACK or a parameter); return the first for which ``until`` is true."""
+        start_v = self.clock.seconds
+        deadline = time.monotonic() + (seconds if wall else wall_cap_s(seconds))
+        while (left := deadline - time.monotonic()) > 0 and (wall or self.clock.seconds - start_v < seconds):
+            msg = self.mav.recv_match(blocking=True, timeout=min(left, 0.2 if wall else READ_S))
             if msg is None:
                 continue
             self._fold(msg)
@@ -82,6 +94,8 @@ class Script:
         kind = msg.get_type()
         if msg.get_srcComponent() != 1 and kind != "COMMAND_ACK":
             return
+        if msg.get_srcComponent() == 1:
+            self.clock.observe(msg)
         if kind == "LOCAL_POSITION_NED":
             self.z = float(msg.z)
         elif kind == "EXTENDED_SYS_STATE":
@@ -100,7 +114,7 @@ class Script:
         padded = (params + [0.0] * 7)[:7]
         for attempt in range(3):
             self.mav.mav.command_long_send(self.mav.target_system, 1, command, attempt, *padded)
-            ack = self._pump(timeout_s / 3, lambda m: m.get_type() == "COMMAND_ACK" and m.command == command)
+            ack = self._pump(timeout_s / 3, lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, wall=True)
             if ack is not None:
                 return str(M.enums["MAV_RESULT"][ack.result].name).removeprefix("MAV_RESULT_")
         return "NO_ACK"
@@ -125,21 +139,32 @@ class Script:
         return self._at_10_hz(lambda: self._velocity(down_m_s), seconds, until)
 
     def _at_10_hz(self, send: Any, seconds: float, until: Any = None) -> float | None:
-        """``send()`` every 0.1 s for ``seconds``, reading meanwhile; seconds until ``until()``."""
-        start = time.monotonic()
-        while (elapsed := time.monotonic() - start) < seconds:
-            send()
-            self._pump(0.1)
+        """``send()`` every 0.1 s for ``seconds``, reading meanwhile; seconds until ``until()``.
+        All of the vehicle's time: a vehicle run N times faster gets its setpoints N times as
+        often on the wall clock, as many per second of its own as at real time."""
+        start = next_send = self.clock.seconds
+        deadline = time.monotonic() + wall_cap_s(seconds)
+        while (elapsed := self.clock.seconds - start) < seconds and time.monotonic() < deadline:
+            if self.clock.seconds >= next_send:
+                send()
+                next_send = self.clock.seconds + SETPOINT_PERIOD_S
+            self._read_one()
             if until is not None and until():
                 return elapsed
         return None
+
+    def _read_one(self) -> None:
+        """Fold the next message, waiting at most :data:`READ_S` of wall time for it."""
+        msg = self.mav.recv_match(blocking=True, timeout=READ_S)
+        if msg is not None:
+            self._fold(msg)
 
     def _param(self, name: str, attempts: int = 4) -> float | None:
         """PARAM_REQUEST_READ, asked again when no answer comes within 3 s: over UDP a request
         or its PARAM_VALUE can be lost, and a starved autopilot answers late."""
         for _ in range(attempts):
             self.mav.mav.param_request_read_send(self.mav.target_system, 1, name.encode(), -1)
-            msg = self._pump(3.0, lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name)
+            msg = self._pump(3.0, lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name, wall=True)
             if msg is not None:
                 return float(msg.param_value)
         return None
@@ -153,7 +178,8 @@ class Script:
             return out
         out.autopilot = str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
         takeoff_mode, offboard_mode = MODES.get(out.autopilot, ("", ""))
-        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("HOME_POSITION", 1)):
+        # ATTITUDE: a stamped message from the start (ArduCopter sends no position before its EKF has one)
+        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("HOME_POSITION", 1), ("ATTITUDE", 10)):
             self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
         names = ("LNDMC_Z_VEL_MAX",) if out.autopilot == "PX4" else ("LAND_SPEED", "LAND_SPEED_HIGH")
         out.land_param = {n: self._param(n) for n in names}
@@ -183,28 +209,29 @@ class Script:
 
     def _arm(self, takeoff_mode: str, timeout_s: float) -> None:
         out = self.out
-        start = time.monotonic()
+        start = self.clock.seconds
+        deadline = time.monotonic() + wall_cap_s(timeout_s)
         self._pump(1.0)
         out.standing_height_m = None if math.isnan(self.z) else round(-self.z, 3)
         out.home_z_m = None if self.home_z is None else round(self.home_z, 3)
-        while time.monotonic() - start < timeout_s:
+        while self.clock.seconds - start < timeout_s and time.monotonic() < deadline:
             ack = self._set_mode(takeoff_mode)
             out.takeoff_mode_ack = out.takeoff_mode_ack or ack
             if ack == "ACCEPTED" and self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, [1.0]) == "ACCEPTED":
                 self._pump(1.5)
                 if self.armed and self.mode == takeoff_mode:
                     out.takeoff_mode_ack = ack
-                    out.armable_after_s = round(time.monotonic() - start, 1)
+                    out.armable_after_s = round(self.clock.seconds - start, 1)
                     return
             self._pump(1.0)
 
     def _finish(self) -> Outcome:
         out = self.out
-        start = time.monotonic()
+        start = self.clock.seconds
         if self.armed:
             self._pump(20.0, lambda m: not self.armed)
         if not self.armed:
-            out.disarmed = f"by itself after {time.monotonic() - start:.0f} s"
+            out.disarmed = f"by itself after {self.clock.seconds - start:.0f} s"
         else:
             out.disarmed = "on command: " + self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, [0.0])
             if out.disarmed.endswith("ACCEPTED"):
@@ -261,7 +288,11 @@ def main() -> None:
 
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--out", type=Path, help="also write the JSON here")
+    for kind in ("px4", "ardupilot"):
+        parser.add_argument(f"--{kind}-speedup", type=float, default=1.0,
+                            help=f"real {kind} and our SITL as it this many times real time (the script counts their time)")
     args = parser.parse_args()
+    speedup = {"px4": args.px4_speedup, "ardupilot": args.ardupilot_speedup}
     root, why = find_autopilots()
     if root is None:
         raise SystemExit(why)
@@ -271,13 +302,13 @@ def main() -> None:
     connections: dict[str, str] = {}
     stops = []
     for kind, start in (("real px4", start_px4), ("real ardupilot", start_ardupilot)):
-        ap = start(root, work / kind.replace(" ", "-"))
+        ap = start(root, work / kind.replace(" ", "-"), speedup=speedup[kind.split()[1]])
         connections[kind] = ap.connection
         stops.append(ap.stop)
     for personality in ("px4", "ardupilot"):
         port = free_udp_port()
         sitl = start_sitl(port, clock="realtime", config=config, camera=False, timeout_s=120.0,
-                          extra_args=["--autopilot", personality])
+                          extra_args=["--autopilot", personality, "--speed", f"{speedup[personality]:g}"])
         connections[f"ours {personality}"] = f"udpin:127.0.0.1:{port}"
         stops.append(sitl.stop)
     outcomes: dict[str, Outcome] = {}
@@ -399,11 +430,18 @@ class PrecLandScript(Script):
         if len(self.pr.texts) < 40 and text not in self.pr.texts:
             self.pr.texts.append(text)
 
-    def _pump(self, seconds: float, until: Any = None) -> Any:
-        found = super()._pump(seconds, until)
+    def _pump(self, seconds: float, until: Any = None, wall: bool = False) -> Any:
+        found = super()._pump(seconds, until, wall)
+        self._heard_texts()
+        return found
+
+    def _read_one(self) -> None:
+        super()._read_one()
+        self._heard_texts()
+
+    def _heard_texts(self) -> None:
         while self.listener is not None and self.listener.texts:
             self._said(self.listener.texts.pop(0))
-        return found
 
     def _target(self, point: tuple[float, float, float], wrong_frame: bool = False) -> None:
         from sitl.landing_target import FRAME_BODY_FRD, FRAME_LOCAL_NED, ned_to_body
@@ -468,7 +506,7 @@ class PrecLandScript(Script):
             self.mav.mav.param_set_send(self.mav.target_system, 1, name.encode(), 1.0, M.MAV_PARAM_TYPE_INT8)
             self._pump(0.5)
         self.pr.reboot_ack = self._command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, [1.0])
-        self._pump(3.0)
+        self._pump(3.0, wall=True)  # its process restarting, on the wall clock: then no HEARTBEAT of before it is read
         self.mav.wait_heartbeat(timeout=60)
         for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 20)):
             self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])

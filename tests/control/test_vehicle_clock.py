@@ -1,15 +1,21 @@
 """Real time by the vehicle's clock: an autopilot's SITL run faster than real time is flown at the
-control rate of its own time, and the rendered camera draws at its rate of that time. Clocks are
-injected: no wall-clock timing in these tests."""
+control rate of its own time, the rendered camera draws at its rate of that time, and scripts and
+tests wait on it by its stamps. Clocks are injected: no wall-clock timing in these tests."""
 
 from __future__ import annotations
 
+import struct
 from dataclasses import replace
+from pathlib import Path
+from typing import Any
 
 import pytest
+from pymavlink import mavutil
 
 from companion.config import SessionConfig
 from companion.control.link_port import VehicleClockTicker
+from companion.link.tlog import TlogWriter
+from companion.testing.vehicle_time import TlogClock, VehicleClock, wall_cap_s
 from companion.vision.rendered import RenderedCamera
 from sitl.config import CameraConfig, WorldConfig
 from tests.vision.test_rendered import Clock, snapshot
@@ -80,3 +86,49 @@ def test_by_the_vehicles_clock_the_camera_draws_a_frame_per_period_of_its_time()
     assert wall.step() is not None
     state["snap"] = replace(state["snap"], time_boot_ms=2010)
     assert wall.step() is not None  # by the wall clock the loop's own period paces it instead
+
+
+# ----- the vehicle's time for scripts and tests (companion/testing/vehicle_time.py) ---------------
+def _attitude(ms: int, component: int = 1) -> Any:
+    mav = mavutil.mavlink.MAVLink(None, srcSystem=1, srcComponent=component)
+    msg = mav.attitude_encode(ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    msg.pack(mav)
+    return msg
+
+
+def test_the_vehicle_clock_counts_its_stamps_through_late_messages_and_a_reboot() -> None:
+    clock = VehicleClock()
+    for ms in (40_000, 40_500, 40_480, 41_000):  # 40_480: a stream stamped earlier, arriving later
+        clock.observe(_attitude(ms))
+    assert clock.seconds == pytest.approx(1.0)
+    clock.observe(_attitude(300))  # rebooted: its boot clock starts again
+    clock.observe(_attitude(1_300))
+    assert clock.seconds == pytest.approx(2.0)
+    clock.observe(mavutil.mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3))  # no stamp: nothing
+    assert clock.seconds == pytest.approx(2.0)
+
+
+def test_the_tlog_clock_follows_a_growing_tlog_and_counts_only_the_vehicles_packets(tmp_path: Path) -> None:
+    path = tmp_path / "session.tlog"
+    writer = TlogWriter(path, flush_every=1)
+    tlog = TlogClock(path)
+    assert tlog.seconds() == 0.0  # not written yet
+    for k in range(11):  # 10 s of the vehicle's time in 2.5 s of the wall's: 4x
+        writer.write(_attitude(10_000 + 1000 * k).get_msgbuf(), wall_time_s=100.0 + 0.25 * k)
+        writer.write(_attitude(99_000).get_msgbuf(), sent=True, wall_time_s=100.0 + 0.25 * k)  # ours: not the vehicle's
+        writer.write(_attitude(5, component=100).get_msgbuf(), wall_time_s=100.0 + 0.25 * k)  # its camera's
+        if k == 4:
+            assert tlog.seconds() == pytest.approx(4.0)
+    record = _attitude(21_000).get_msgbuf()
+    with path.open("ab") as f:  # half a record, as a reader may find it between two flushes
+        f.write(struct.pack(">Q", int(103e6)) + record[:10])
+    assert tlog.seconds() == pytest.approx(10.0)
+    with path.open("ab") as f:
+        f.write(record[10:])
+    assert tlog.seconds() == pytest.approx(11.0)
+    writer.close()
+    assert tlog.speed() == {"wall_s": 3.0, "vehicle_s": 11.0, "speed": pytest.approx(3.667, abs=1e-3)}
+
+
+def test_a_wait_on_the_vehicles_time_is_capped_by_the_wall_clock_generously() -> None:
+    assert wall_cap_s(20.0) == 70.0  # a vehicle at a third of real time still passes 20 s of its own
