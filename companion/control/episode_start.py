@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 OFFBOARD_ATTEMPTS = 3
 RETRY_STREAM_FRAMES = 5  # after a refusal: half a second of setpoints, so a lossy link delivers some
 TELEMETRY_FRAMES = 100  # frames after a reset within which the vehicle must report being in the air
+TAKEOFF_ATTEMPTS = 2  # a vehicle that disarmed itself as it took off is taken off once more
 
 
 class StartParts(Protocol):
@@ -169,14 +170,44 @@ class EpisodeStart:
             self._asked_truth = True
             ask_for_truth(port.link, snap.autopilot, self.parts.truth_rate_hz)
         if not snap.in_air:
-            take_off(port.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
-            for _ in range(int(30 * cfg.control_rate_hz)):
-                snap = port.next_snapshot()
-                if snap is not None and snap.in_air and port.home.height(snap) > 0.8 * cfg.takeoff_alt_m:
-                    break
+            snap = self._take_off()
         if snap is not None:
             self._check_home()
         return self._goto(start, snap)
+
+    def _take_off(self) -> VehicleSnapshot | None:
+        """Take off and wait for the climb (30 s of control steps). The last episode leaves the
+        vehicle armed on the ground, and its autopilot disarms it a while after the landing (PX4
+        ``COM_DISARM_LAND``, 2 s of its time): when that falls on the take-off, the vehicle stands
+        disarmed and is taken off once more. The faster a SITL runs, the shorter that while is
+        against the companion's wall-clock work between episodes."""
+        cfg, port = self.cfg, self.port
+        snap: VehicleSnapshot | None = None
+        for attempt in range(TAKEOFF_ATTEMPTS):
+            take_off(port.link, self.dialect, cfg.takeoff_alt_m, cfg.arm_timeout_s)
+            snap = self._climb()
+            if snap is None or snap.armed or snap.in_air:
+                return snap
+            if attempt + 1 < TAKEOFF_ATTEMPTS:
+                log.warning("the vehicle disarmed itself as it took off (its disarm after the last landing): "
+                            "taking off again")
+        return snap
+
+    def _climb(self) -> VehicleSnapshot | None:
+        """Snapshots until the vehicle is up (the last one), or it is seen armed and then disarmed."""
+        cfg, port = self.cfg, self.port
+        snap: VehicleSnapshot | None = None
+        seen_armed = False
+        for _ in range(int(30 * cfg.control_rate_hz)):
+            snap = port.next_snapshot()
+            if snap is None:
+                continue
+            if snap.in_air and port.home.height(snap) > 0.8 * cfg.takeoff_alt_m:
+                return snap
+            seen_armed = seen_armed or snap.armed
+            if seen_armed and not snap.armed:
+                return snap
+        return snap
 
     def _check_home(self) -> None:
         home = self.port.home

@@ -195,3 +195,32 @@ def test_an_episode_error_leaves_the_vehicle_safe(dialect: Dialect) -> None:
     record = runner.run(0, Phase.DEMONSTRATION, seed=1)
     assert record.outcome == "error" and "started by flying to the start point" in record.notes
     assert link.calls[-1] in ("land", "mode LAND")  # the default end_of_run policy
+
+
+class DisarmsAsItTakesOff(DialectLink):
+    """Stands armed on the ground after a landing; its auto-disarm fires on the first take-off
+    (PX4 COM_DISARM_LAND, seen on PX4 SIH at 4x), the second one climbs."""
+
+    def __init__(self, dialect: Dialect) -> None:
+        super().__init__(dialect, start_ned=(0.0, 0.0, 0.0))
+        self.takeoffs = 0
+
+    def takeoff(self, alt_m: float) -> None:
+        super().takeoff(alt_m)
+        self.takeoffs += 1
+        if self.takeoffs == 1:
+            self.armed = False
+        else:
+            self.pos = np.array([0.0, 0.0, -alt_m])
+
+
+def test_a_vehicle_that_disarms_itself_as_it_takes_off_is_taken_off_again(
+        dialect: Dialect, caplog: pytest.LogCaptureFixture) -> None:
+    link = DisarmsAsItTakesOff(dialect)
+    runner, _ = make_runner(link, ScriptedHuman(set()))
+    runner.p.simulator = None  # a vehicle without episode resets: it takes off and flies to the start point
+    with caplog.at_level(logging.WARNING):
+        record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert link.takeoffs == 2 and link.calls.count("arm") == 2, link.calls
+    assert "disarmed itself as it took off" in caplog.text
+    assert record.outcome != "error" and "started by flying to the start point" in record.notes, record
