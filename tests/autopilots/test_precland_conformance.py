@@ -5,6 +5,9 @@ The same script (companion/testing/conformance.py ``PrecLandScript``) flies all 
 place (computed from the vehicle's own reported position), ask for precision landing and see
 whether it is accepted, what the HEARTBEAT says, which PLD_* / PLND_* parameters exist, and where
 it lands. ``COL_PRECLAND_OUT=FILE`` also writes the outcomes as JSON (results/precland/conformance).
+
+All four run faster than real time (tests/autopilots/__init__.py's ``SPEEDUP``, our SITL as each
+at its autopilot's speed): the script's waits count the vehicle's seconds, so it means the same.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from companion.testing.autopilots import (
     start_px4,
 )
 from companion.testing.conformance import PrecLandOutcome, fly_precland
+from tests.autopilots import SPEEDUP
 
 pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
 KINDS = ("px4", "ardupilot")
@@ -40,7 +44,8 @@ def outcomes(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Pre
             pytest.fail(why)
         pytest.skip(why)
     work = tmp_path_factory.mktemp("precland")
-    real = {"px4": start_px4(root, work / "px4"), "ardupilot": start_ardupilot(root, work / "ardupilot")}
+    real = {"px4": start_px4(root, work / "px4", speedup=SPEEDUP["px4"]),
+            "ardupilot": start_ardupilot(root, work / "ardupilot", speedup=SPEEDUP["ardupilot"])}
     config = work / "ours.toml"
     config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
     ours = {}
@@ -48,7 +53,7 @@ def outcomes(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Pre
     for kind in KINDS:
         port = free_udp_port()
         ours[kind] = start_sitl(port, clock="realtime", config=config, camera=False, timeout_s=120.0,
-                                extra_args=["--autopilot", kind])
+                                extra_args=["--autopilot", kind, "--speed", f"{SPEEDUP[kind]:g}"])
         connections[f"ours {kind}"] = f"udpin:127.0.0.1:{port}"
     results: dict[str, PrecLandOutcome] = {}
     # PX4 says nothing on its API link: listen as a ground station on its GCS link (local port 18570 + i)

@@ -1,10 +1,20 @@
 """The companion against the real autopilots (PX4 SIH and ArduCopter SITL, built from upstream).
 
 Both are started at once, each on ports of its own, in a fresh working folder, and the same
-scenario runs against each in its own thread (they fly in real time; side by side the pair
-takes about as long as one): ``col fly --pilot expert`` for three episodes with the camera rendered
-from the vehicle's telemetry (``--camera render``), a ``col eval`` of the checkpoint it wrote, interrupted with Ctrl-C in flight,
-and a listener on the companion's port after each run that watches what the vehicle does next.
+scenario runs against each in its own thread: the conformance script (compared with our SITL as
+the same autopilot), ``col fly --pilot expert`` for three episodes with the camera rendered from
+the vehicle's telemetry (``--camera render``), a ``col eval`` of the checkpoint it wrote,
+interrupted with Ctrl-C in flight, and a listener on the companion's port after each run that
+watches what the vehicle does next.
+
+Faster than real time (:data:`SPEEDUP`: PX4 SIH 4x, ArduCopter 5x, our SITL as each at the same
+speed; bench/README.md, "The real autopilots faster than real time", says why these): the
+companion flies by the vehicle's clock (``[companion.session] clock = "vehicle"``), and every
+wait on the vehicle here and in the conformance script counts the vehicle's seconds
+(companion/testing/vehicle_time.py), so the tests mean what they meant at real time; the wall
+clock only caps them (``wall_cap_s``). ``COL_AUTOPILOT_REPORT_OUT=FILE`` writes each phase's wall
+seconds, the speed-up the vehicles kept while the companion flew (read from its tlogs) and the
+conformance outcomes, for bench/README.md (nothing here asserts on the wall clock).
 
 Without the autopilots the tests skip and say how to get them; ``COL_REQUIRE_AUTOPILOTS=1``
 (set by .ci/run) makes that a failure instead.
@@ -19,10 +29,10 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import pytest
 from pymavlink import mavutil
@@ -36,14 +46,17 @@ from companion.testing.autopilots import (
     start_px4,
 )
 from companion.testing.conformance import Outcome, differences, fly_script
+from companion.testing.vehicle_time import TlogClock, VehicleClock, wall_cap_s
+from tests.autopilots import SPEEDUP  # times real time, each autopilot and our SITL as it
 
-# one xdist worker runs this group in turn: real PX4 SIH flies in real time and lost the
-# companion ("Connection to mission computer lost") beside the CPU-bound trial reruns
+# one xdist worker runs this group in turn: real PX4 SIH lost the companion ("Connection to
+# mission computer lost") beside the CPU-bound trial reruns
 pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(900), pytest.mark.xdist_group("real-autopilots")]
 COL = str(Path(sys.executable).with_name("col"))
 KINDS = ("px4", "ardupilot")
 SHORT = """
 [companion.session]
+clock = "vehicle"
 start_height_above_pad_m = 2.5
 start_xy_range_m = 0.5
 max_steps = 500
@@ -57,6 +70,8 @@ vehicle_height_m = 0.0
 """
 EXPERT_EPISODES = 3
 LANDING_MODES = {"px4": {"LAND"}, "ardupilot": {"LAND"}}  # pymavlink's names of AUTO.LAND and LAND
+IN_FLIGHT_S = 3.0  # of the vehicle's time after the take-off: on the way to the start point
+T = TypeVar("T")
 
 
 @dataclass
@@ -65,7 +80,7 @@ class Watched:
 
     modes: list[str] = field(default_factory=list)
     landed_states: list[int] = field(default_factory=list)
-    disarmed_after_s: float | None = None
+    disarmed_after_s: float | None = None  # of the vehicle's time
     heard: bool = False
 
 
@@ -84,6 +99,7 @@ class Scenario:
     log_tail: str = ""
     conformance: Outcome | None = None  # the scripted flight, before the companion flies
     ours: Outcome | None = None  # the same script against our SITL's personality
+    timing: dict[str, Any] = field(default_factory=dict)  # wall seconds per phase, speed kept (not asserted)
 
 
 def _records(run_dir: Path) -> list[dict[str, Any]]:
@@ -91,31 +107,38 @@ def _records(run_dir: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
 
 
-def watch_vehicle(connection: str, seconds: float) -> Watched:
-    """Listen where the companion listened, until the vehicle is seen disarmed (or ``seconds``)."""
-    seen = Watched()
+def watch_vehicle(connection: str, vehicle_s: float) -> Watched:
+    """Listen where the companion listened, until the vehicle is seen disarmed or ``vehicle_s``
+    of its own time have passed (the wall clock only as a safety cap)."""
+    seen, clock = Watched(), VehicleClock()
     link = mavutil.mavlink_connection(connection, source_system=250)
-    start = time.monotonic()
+    deadline = time.monotonic() + wall_cap_s(vehicle_s)
     try:
-        while (elapsed := time.monotonic() - start) < seconds:
-            msg = link.recv_match(type=["HEARTBEAT", "EXTENDED_SYS_STATE"], blocking=True, timeout=1.0)
+        while time.monotonic() < deadline and clock.seconds < vehicle_s:
+            msg = link.recv_match(blocking=True, timeout=0.2)
             if msg is None or msg.get_srcComponent() != 1:
                 continue
-            seen.heard = True
+            clock.observe(msg)
             if msg.get_type() == "EXTENDED_SYS_STATE":
+                seen.heard = True
                 seen.landed_states.append(int(msg.landed_state))
-                continue
-            if msg.type in (mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER):
-                continue
-            mode = mavutil.mode_string_v10(msg)
-            if not seen.modes or seen.modes[-1] != mode:
-                seen.modes.append(mode)
-            if not msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
-                seen.disarmed_after_s = elapsed
+            elif msg.get_type() == "HEARTBEAT" and _saw_disarmed(seen, msg):
+                seen.disarmed_after_s = clock.seconds
                 break
     finally:
         link.close()
     return seen
+
+
+def _saw_disarmed(seen: Watched, msg: Any) -> bool:
+    """Fold a HEARTBEAT into ``seen``; True when it is the vehicle's own and says disarmed."""
+    seen.heard = True
+    if msg.type in (mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER):
+        return False
+    mode = mavutil.mode_string_v10(msg)
+    if not seen.modes or seen.modes[-1] != mode:
+        seen.modes.append(mode)
+    return not msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
 def _fly_expert(ap: RunningAutopilot, config: Path, run_dir: Path) -> subprocess.CompletedProcess[str]:
@@ -126,23 +149,27 @@ def _fly_expert(ap: RunningAutopilot, config: Path, run_dir: Path) -> subprocess
 
 def _eval_interrupted(ap: RunningAutopilot, config: Path, checkpoint: Path,
                       run_dir: Path) -> subprocess.CompletedProcess[str]:
-    """``col eval`` of ``checkpoint``, sent SIGINT once the policy has flown some steps."""
+    """``col eval`` of ``checkpoint``, sent SIGINT :data:`IN_FLIGHT_S` of the vehicle's time after
+    its take-off (read from the run's own tlog as it is written)."""
     cmd = [COL, "eval", str(checkpoint), "--connect", ap.connection,
            "--config", str(config), "--episodes", "1", "--run-dir", str(run_dir), "-v"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
     lines: list[str] = []
+    took_off = threading.Event()
 
     def read() -> None:
         assert proc.stdout is not None
         for line in proc.stdout:
             lines.append(line)
+            if "home:" in line:  # logged when the take-off is over, before the flight to the start point
+                took_off.set()
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and proc.poll() is None and not any("home:" in ln for ln in lines):
-        time.sleep(0.5)  # logged when the take-off is over, before the flight to the start point
-    time.sleep(3.0)  # in flight, on the way to the start point (a weak policy may land soon after it)
+    deadline = time.monotonic() + 240  # a safety cap: arming waits are the companion's, on the wall clock
+    while time.monotonic() < deadline and proc.poll() is None and not took_off.wait(0.05):
+        pass
+    _wait_vehicle_time(TlogClock(run_dir / "session.tlog"), IN_FLIGHT_S, proc)  # a weak policy may land soon after
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     proc.wait(120)
@@ -150,25 +177,67 @@ def _eval_interrupted(ap: RunningAutopilot, config: Path, checkpoint: Path,
     return subprocess.CompletedProcess(cmd, proc.returncode, "".join(lines), "")
 
 
-def run_scenario(scenario: Scenario, ap: RunningAutopilot, config: Path, work: Path) -> None:
+def _wait_vehicle_time(tlog: TlogClock, seconds: float, proc: subprocess.Popen[str]) -> None:
+    """Until ``seconds`` more of the vehicle's time are in the companion's tlog (or it exits)."""
+    start = tlog.seconds()
+    deadline = time.monotonic() + wall_cap_s(seconds)
+    while proc.poll() is None and tlog.seconds() - start < seconds and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
+def _timed(timing: dict[str, Any], phase: str, run: Callable[[], T]) -> T:
+    """``run()``, its wall seconds noted in ``timing`` (for bench/README.md, never asserted)."""
+    start = time.monotonic()
     try:
-        scenario.conformance = fly_script(ap.connection, slow_s=20.0, fast_s=20.0)
+        return run()
+    finally:
+        timing[f"{phase}_wall_s"] = round(time.monotonic() - start, 1)
+
+
+def _kept(scenario: Scenario, work: Path) -> None:
+    """The speed-up each companion run's vehicle kept, from its tlog; the expert's frame ages."""
+    for phase in ("expert", "eval"):
+        scenario.timing[f"{phase}_vehicle_speed"] = TlogClock(work / phase / "session.tlog").speed()
+    if scenario.expert is not None and scenario.expert.returncode == 0:
+        summary = json.loads(scenario.expert.stdout.strip().splitlines()[-1])
+        scenario.timing["expert_frame_age_ms"] = summary.get("frame_age_ms")
+
+
+def run_scenario(scenario: Scenario, ap: RunningAutopilot, config: Path, work: Path) -> None:
+    timing = scenario.timing
+    try:
+        scenario.conformance = _timed(timing, "conformance", lambda: fly_script(ap.connection, slow_s=20.0, fast_s=20.0))
         expert_dir = work / "expert"
-        scenario.expert = _fly_expert(ap, config, expert_dir)
+        scenario.expert = _timed(timing, "expert", lambda: _fly_expert(ap, config, expert_dir))
         scenario.expert_records = _records(expert_dir)
-        scenario.after_expert = watch_vehicle(ap.connection, 40.0)
+        scenario.after_expert = _timed(timing, "after_expert", lambda: watch_vehicle(ap.connection, 40.0))
         checkpoints = sorted((expert_dir / "checkpoints").glob("episode_*.npz"))
         if not checkpoints:
             scenario.error = "the expert run wrote no checkpoint"
             return
         eval_dir = work / "eval"
-        scenario.interrupted = _eval_interrupted(ap, config, checkpoints[-1], eval_dir)
+        scenario.interrupted = _timed(timing, "eval", lambda: _eval_interrupted(ap, config, checkpoints[-1], eval_dir))
         scenario.eval_records = _records(eval_dir)
-        scenario.after_interrupt = watch_vehicle(ap.connection, 90.0)
+        scenario.after_interrupt = _timed(timing, "after_interrupt", lambda: watch_vehicle(ap.connection, 90.0))
+        _kept(scenario, work)
     except Exception as exc:  # reported by the tests, with the autopilot's log
         scenario.error = repr(exc)
     finally:
         scenario.log_tail = ap.log_tail()
+
+
+def _write_report(results: dict[str, Scenario], started_s: float) -> None:
+    """``COL_AUTOPILOT_REPORT_OUT``: timings and conformance outcomes as JSON (bench/README.md)."""
+    out = os.environ.get("COL_AUTOPILOT_REPORT_OUT")
+    if not out:
+        return
+    report = {"speedup": SPEEDUP, "flights_wall_s": round(time.monotonic() - started_s, 1),
+              "load_1min_after": round(os.getloadavg()[0], 2),
+              "timing": {k: s.timing for k, s in results.items()},
+              "conformance": {k: {"real": s.conformance.to_dict() if s.conformance else None,
+                                  "ours": s.ours.to_dict() if s.ours else None} for k, s in results.items()}}
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps(report, indent=1) + "\n")
 
 
 @pytest.fixture(scope="module")
@@ -181,18 +250,25 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
     work = tmp_path_factory.mktemp("autopilots")
     config = work / "short.toml"
     config.write_text(SHORT)
-    started = {"px4": start_px4(root, work / "px4"), "ardupilot": start_ardupilot(root, work / "ardupilot")}
+    started_s = time.monotonic()
+    started = {"px4": start_px4(root, work / "px4", speedup=SPEEDUP["px4"]),
+               "ardupilot": start_ardupilot(root, work / "ardupilot", speedup=SPEEDUP["ardupilot"])}
     ours_config = work / "ours.toml"
     ours_config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
     ours = {}
     for kind in KINDS:  # our SITL as each, for the conformance script (started here: it lives as long as this thread)
         port = free_udp_port()
         ours[kind] = (start_sitl(port, clock="realtime", config=ours_config, camera=False, timeout_s=120.0,
-                                 extra_args=["--autopilot", kind]), f"udpin:127.0.0.1:{port}")
+                                 extra_args=["--autopilot", kind, "--speed", f"{SPEEDUP[kind]:g}"]),
+                      f"udpin:127.0.0.1:{port}")
     results = {kind: Scenario(kind) for kind in KINDS}
 
     def fly_ours(kind: str) -> None:
-        results[kind].ours = fly_script(ours[kind][1], slow_s=20.0, fast_s=20.0)
+        timing = results[kind].timing
+        try:
+            results[kind].ours = _timed(timing, "ours_conformance", lambda: fly_script(ours[kind][1], slow_s=20.0, fast_s=20.0))
+        finally:  # at N times real time an idle SITL still costs a tenth of a core: not beside the companion's flights
+            ours[kind][0].stop()
 
     try:
         threads = [threading.Thread(target=run_scenario, args=(results[k], started[k], config, work / f"run-{k}"))
@@ -201,6 +277,7 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
             t.start()
         for t in threads:
             t.join(800)
+        _write_report(results, started_s)
         yield results
     finally:
         for ap in started.values():
