@@ -22,14 +22,12 @@ import argparse
 import contextlib
 import json
 import os
-import subprocess
-import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
+from load import busy_processes
 from machine_ref import machine_ref_rt
 from pymavlink import mavutil
 
@@ -41,19 +39,6 @@ from companion.testing.autopilots import (
 )
 
 WINDOW_S = 5.0
-
-
-@contextlib.contextmanager
-def busy_processes(n: int) -> Iterator[None]:
-    """``n`` CPU-bound processes at nice 0 for the block: CI's other tests, roughly."""
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"],
-                              preexec_fn=lambda: os.setpriority(os.PRIO_PROCESS, 0, 0)) for _ in range(n)]
-    try:
-        yield
-    finally:
-        for p in procs:
-            p.kill()
-            p.wait()
 
 
 def clock_samples(ap: RunningAutopilot, warmup_s: float, seconds: float) -> list[tuple[float, float]]:
@@ -115,7 +100,7 @@ def main() -> None:
     machine_ref = machine_ref_rt()
     load_before = os.getloadavg()[0]
     results: dict[str, dict[str, float | int]] = {}
-    with busy_processes(args.busy_procs), tempfile.TemporaryDirectory(prefix="autopilot-speed-") as tmp:
+    with busy_processes(args.busy_procs, nice=0), tempfile.TemporaryDirectory(prefix="autopilot-speed-") as tmp:
         with contextlib.suppress(PermissionError):
             os.setpriority(os.PRIO_PROCESS, 0, args.nice)  # inherited by the autopilots
         started = {}

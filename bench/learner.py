@@ -18,10 +18,8 @@ Last line of stdout: one JSON object. Run with ``--quick`` for a short run.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -32,6 +30,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from load import busy_processes  # noqa: E402
 from machine_ref import machine_ref_rt  # noqa: E402
 
 from companion.config import LearnerConfig  # noqa: E402
@@ -187,18 +186,6 @@ def live_run(config: LearnerConfig, duration_s: float, rng: np.random.Generator,
         "samples_flown": int(len(flown)),
         "learner_state_at_end": runner.state.value,
     }
-
-
-@contextlib.contextmanager
-def busy_processes(n: int):  # type: ignore[no-untyped-def]
-    """``n`` CPU-bound processes for the duration of the block: a loaded machine on purpose."""
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
-    try:
-        yield
-    finally:
-        for p in procs:
-            p.kill()
-            p.wait()
 
 
 def main() -> None:
