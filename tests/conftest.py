@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import random
 import re
 import signal
 import socket
 import time
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -41,6 +43,31 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def free_rtp_port() -> int:
+    """An even UDP port on 127.0.0.1 whose next port is free too: an RTP receiver (FFmpeg's SDP
+    reader) binds both, RTP on the even one and RTCP on the next, and fails with "invalid data"
+    when either is taken. It is drawn below the kernel's ephemeral range, so that no socket bound
+    to port 0 meanwhile (the SITL's own sender among them) can take either."""
+    low = 32768
+    with contextlib.suppress(OSError, ValueError):
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    rng = random.Random()
+    for _ in range(200):
+        port = rng.randrange(max(1024, low - 12000), low - 1) & ~1
+        if _bindable(port) and _bindable(port + 1):
+            return port
+    raise RuntimeError("no free pair of UDP ports below the ephemeral range")
+
+
+def _bindable(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
 
 
 def gap_steps(notes: Iterable[str]) -> int:

@@ -15,7 +15,7 @@ from pymavlink.dialects.v20 import common as M
 from companion.simulator import SimulatorClient, SitlProcess, start_sitl
 from companion.vision.perception import PadDetector
 from sitl.rtp import parse_destination, sdp_for
-from tests.conftest import free_port
+from tests.conftest import free_rtp_port
 from tests.mav_client import MavTestClient
 
 pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.timeout(120)]
@@ -31,7 +31,7 @@ def test_destinations_are_checked() -> None:
 
 @pytest.fixture
 def rtp_sitl(client: MavTestClient) -> Iterator[tuple[SitlProcess, int]]:
-    port = free_port()
+    port = free_rtp_port()
     s = start_sitl(client.port, clock="realtime", extra_args=["--rtp", f"127.0.0.1:{port}", "--camera-rate", "20"])
     yield s, port
     s.stop()
