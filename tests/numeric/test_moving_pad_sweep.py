@@ -78,7 +78,7 @@ def test_every_config_loads_and_has_its_keys(written: dict[Path, str]) -> None:
 def test_the_policies_grid_is_p1_to_p4_at_20_with_two_replicates(written: dict[Path, str]) -> None:
     path = next(p for p in written if p.name == "policies-1.0.toml")
     exp = load_experiment(path).exp
-    assert exp.participants == ("P1", "P2", "P3", "P4") and exp.conditions == ("demo", "col")
+    assert exp.participants == ("P1", "P2", "P3", "P4") and exp.conditions == ("demo", "col", "colplus")
     assert exp.interactions == (20,) and exp.seeds == (0, 1)
     assert (exp.eval_runs, exp.eval_seed, exp.updates_per_step, exp.eval_inprocess) == (100, 100_000, 40, True)
     assert "colplus" in TRAIN_CONDITIONS and run.parse_conditions("demo,col,colplus")[-1] == "colplus"

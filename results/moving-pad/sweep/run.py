@@ -53,7 +53,7 @@ LEVEL = 0.2  # configs/paper.toml's disturbance level: the vehicle drives at lev
 STARTS, FIRST_START = 100, 100_000
 PARTICIPANTS = ("P1", "P2", "P3", "P4")
 REPLICATES = (0, 1)
-CONDITIONS = ("demo", "col")  # colplus may be added with --conditions once preregistered
+CONDITIONS = ("demo", "col", "colplus")  # docs/baselines.md, Amendment 2
 INTERACTIONS = 20
 WORKERS = 2
 PRECLAND = ("--pilot", "precland")
@@ -197,7 +197,7 @@ def experiment_text(text: str, conditions: tuple[str, ...]) -> str:
     held-out starts from 100000; the other [experiment] keys as configs/paper.toml has them."""
     for key, value, comment in (
         ("participants", list(PARTICIPANTS), "synthetic pilot profiles"),
-        ("conditions", list(conditions), "the sweep's policies (colplus once preregistered)"),
+        ("conditions", list(conditions), "the sweep's policies (docs/baselines.md, Amendment 2: CoL+ beside Demo and CoL)"),
         ("interactions", [INTERACTIONS], "Demo@20, CoL@20"),
         ("seeds", list(REPLICATES), "replicates 0 and 1: 8 trials a condition"),
         ("eval_runs", STARTS, "held-out starts flown by every final policy"),
@@ -450,7 +450,7 @@ def with_conditions(path: Path, conditions: tuple[str, ...]) -> None:
     """The grid's conditions set in its config (the fingerprint leaves the grid's extent out,
     so done trials stay done)."""
     text = set_key(path.read_text(), "experiment", "conditions", list(conditions),
-                   "the sweep's policies (colplus once preregistered)")
+                   "the sweep's policies (docs/baselines.md, Amendment 2: CoL+ beside Demo and CoL)")
     check_config(text, {("experiment", "conditions"): list(conditions)})
     path.write_text(text)
 

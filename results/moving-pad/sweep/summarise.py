@@ -32,7 +32,7 @@ ARMS = {
 }
 PRECLAND_ARMS = ("precland-px4", "precland-ardupilot")
 CONDITIONS = {"demo": "Demo@20", "col": "CoL@20", "colplus": "CoL+@20"}
-PLANNED_CONDITIONS = ("demo", "col")
+PLANNED_CONDITIONS = ("demo", "col", "colplus")  # docs/baselines.md, Amendment 2
 LEARNED_CONDITIONS = ("col", "colplus")  # the question's "CoL@20 (or CoL+@20)"
 PADS = {"colour": "colour pad", "aruco": "ArUco pad"}
 PARTICIPANTS = ("P1", "P2", "P3", "P4")
