@@ -490,9 +490,10 @@ def keep_grid(out: Path, speed: str) -> Path:
     return folder
 
 
-def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs: Path, workers: int) -> None:
+def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs: Path, workers: int,
+             aruco: bool = True) -> None:
     """Train the grid of one speed (col experiment resumes it), keep its lines and each trial's
-    colour-pad evaluation, then fly each final policy on the ArUco pad."""
+    colour-pad evaluation, then (unless ``aruco`` is off) fly each final policy on the ArUco pad."""
     config = policies_config_path(speed)
     if conditions and config_conditions(config) != conditions:
         with_conditions(config, conditions)
@@ -510,6 +511,7 @@ def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs
         colour = kept_path(f"{key}-speed-{speed}-colour", STARTS, runs)
         if not colour.exists():
             _keep(out / "trials" / key / "eval_episodes.jsonl", colour)
+    for key in [k for k in wanted if k in done] if aruco else []:
         eval_aruco(key, out / done[key]["final_checkpoint"], speed, episodes, runs)
 
 
@@ -623,6 +625,8 @@ def parser() -> argparse.ArgumentParser:
     pol.add_argument("--conditions", type=parse_conditions, default=None, help="e.g. demo,col,colplus (default: the config's)")
     pol.add_argument("--episodes", type=int, default=STARTS, help="a check: the ArUco-pad evaluation's starts")
     pol.add_argument("--workers", type=int, default=WORKERS)
+    pol.add_argument("--no-aruco", dest="aruco", action="store_false",
+                     help="keep the grid and its colour-pad evaluations only (RUN.md: the colour detector finds no pad on the board)")
     ver = sub.add_parser("verify", help="col experiment --verify of two trials of one speed's kept grid")
     ver.add_argument("speed", type=speed_name)
     sub.add_parser("records", help="environment.jsonl from the kept runs' records")
@@ -641,7 +645,7 @@ def main() -> None:
     elif args.step == "fly":
         fly(args.arm, args.speed, args.episodes, runs)
     elif args.step == "policies":
-        policies(args.speed, args.conditions, args.episodes, runs, args.workers)
+        policies(args.speed, args.conditions, args.episodes, runs, args.workers, args.aruco)
     elif args.step == "verify":
         verify(args.speed)
     elif args.step == "records":
