@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.testing.autopilots import udp_port_free
 from companion.testing.fake_vehicle import FakeVehicle
 from tests.mav_client import MavTestClient
 
@@ -56,18 +57,9 @@ def free_rtp_port() -> int:
     rng = random.Random()
     for _ in range(200):
         port = rng.randrange(max(1024, low - 12000), low - 1) & ~1
-        if _bindable(port) and _bindable(port + 1):
+        if udp_port_free(port) and udp_port_free(port + 1):
             return port
     raise RuntimeError("no free pair of UDP ports below the ephemeral range")
-
-
-def _bindable(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
 
 
 def gap_steps(notes: Iterable[str]) -> int:

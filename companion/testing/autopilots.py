@@ -95,7 +95,8 @@ class RunningAutopilot:
         self.stop()
 
 
-def _udp_free(port: int) -> bool:
+def udp_port_free(port: int) -> bool:
+    """Whether a UDP socket can bind ``port`` on 127.0.0.1 right now."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
             s.bind(("127.0.0.1", port))
@@ -149,7 +150,7 @@ def free_px4_instance(first: int = 0, last: int = 9) -> int:
     """The first PX4 instance whose ports (its own and the ones it sends to) are all free,
     claimed for this process until its autopilot stops."""
     for i in range(first, last + 1):
-        if all(_udp_free(p + i) for p in (*PX4_LOCAL_PORTS, PX4_OFFBOARD_PORT, PX4_GCS_PORT)) and _claim("px4", i):
+        if all(udp_port_free(p + i) for p in (*PX4_LOCAL_PORTS, PX4_OFFBOARD_PORT, PX4_GCS_PORT)) and _claim("px4", i):
             return i
     raise RuntimeError(f"no free PX4 instance in {first}..{last}: ports 14540-14590 + instance are taken")
 
@@ -160,7 +161,7 @@ def free_ardupilot_instance(first: int = 0, last: int = 9) -> int:
     for i in range(first, last + 1):
         tcp = [ARDUPILOT_TCP_PORT + 10 * i + k for k in (0, 2, 3)]
         udp = [p + 10 * i for p in ARDUPILOT_SIM_PORTS]
-        if all(_tcp_free(p) for p in tcp) and all(_udp_free(p) for p in udp) and _claim("ardupilot", i):
+        if all(_tcp_free(p) for p in tcp) and all(udp_port_free(p) for p in udp) and _claim("ardupilot", i):
             return i
     raise RuntimeError(f"no free ArduCopter instance in {first}..{last}")
 
