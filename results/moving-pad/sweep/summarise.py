@@ -34,7 +34,8 @@ PRECLAND_ARMS = ("precland-px4", "precland-ardupilot")
 CONDITIONS = {"demo": "Demo@20", "col": "CoL@20", "colplus": "CoL+@20"}
 PLANNED_CONDITIONS = ("demo", "col", "colplus")  # docs/baselines.md, Amendment 2
 LEARNED_CONDITIONS = ("col", "colplus")  # the question's "CoL@20 (or CoL+@20)"
-PADS = {"colour": "colour pad", "aruco": "ArUco pad"}
+PADS = {"colour": "colour pad", "aruco": "ArUco pad (void as flown, RUN.md)"}
+VOID_PADS = ("aruco",)  # RUN.md: the board covers the disc, the policies' detector sees no pad on it
 PARTICIPANTS = ("P1", "P2", "P3", "P4")
 REPLICATES = (0, 1)
 LANDS_PCT, PRECLAND_FAILS_PCT = 90.0, 50.0
@@ -184,13 +185,15 @@ def precland_better(speeds: dict[str, Any], arm: str, cond: str, pad: str) -> di
 def question(speeds: dict[str, Any]) -> dict[str, Any]:
     """Both halves of the question, for every condition and pad that has run."""
     conditions = sorted({c for b in speeds.values() for c in b["policies"]})
-    wins = {f"{c}/{pad}": learning_wins(speeds, c, pad) for c in conditions if c in LEARNED_CONDITIONS for pad in PADS}
+    pads = [pad for pad in PADS if pad not in VOID_PADS]
+    wins = {f"{c}/{pad}": learning_wins(speeds, c, pad) for c in conditions if c in LEARNED_CONDITIONS for pad in pads}
     better = {f"{arm} over {c}/{pad}": precland_better(speeds, arm, c, pad)
-              for arm in PRECLAND_ARMS for c in conditions for pad in PADS}
+              for arm in PRECLAND_ARMS for c in conditions for pad in pads}
     return {"learning_wins": wins, "precland_better": better,
             "rule": f"learning wins: the condition's mean over its trials >= {LANDS_PCT:g} % while both precland arms "
                     f"land <= {PRECLAND_FAILS_PCT:g} %; precland better: its Wilson interval's low end above the "
-                    "condition's interval's high end (95 % BCa over trials)"}
+                    "condition's interval's high end (95 % BCa over trials); the policies' ArUco-pad evaluations "
+                    "are void as flown (RUN.md) and answer nothing"}
 
 
 # ----- writing -------------------------------------------------------------------------------------
@@ -287,6 +290,8 @@ def _series(s: dict) -> Iterable[tuple[str, list[float], list[float], list[tuple
     conditions = sorted({c for b in s["speeds"].values() for c in b["policies"]})
     for cond in conditions:
         for pad, pad_label in PADS.items():
+            if pad in VOID_PADS:
+                continue
             cells = [(float(v), s["speeds"][v]["policies"].get(cond, {}).get(pad)) for v in SPEEDS]
             pts = [(x, c) for x, c in cells if c and c["trials"]]
             if pts:
