@@ -48,6 +48,7 @@ from companion.link.base import VehicleLink
 from companion.link.connection import parse_connection
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.signing import read_key
+from companion.link.sim_params import AutopilotSim, SimWeather
 from companion.msg.episode import EpisodeRecord
 from companion.msg.observation import Observation
 from companion.run_folder import prepare_run_dir, removed_if_unused
@@ -316,6 +317,36 @@ def open_rendered_camera(cfg: CompanionConfig, link: VehicleLink, config_path: P
     return camera
 
 
+def autopilot_sim_for(cfg: CompanionConfig, config_path: Path | None) -> AutopilotSim | None:
+    """A real autopilot's SITL disturbed as our SITL would be (companion/link/sim_params.py): the
+    episode's wind drawn by our SITL's own rule from ``[sitl.disturbance]`` of ``config_path``, so
+    a seed gives the same air on every vehicle. None when nothing is asked."""
+    s = cfg.session
+    if not s.autopilot_sim_disturbance and s.sih_mass_scale == 1.0 and s.sih_drag_scale == 1.0:
+        return None
+    from sitl.config import load_sitl_config
+    from sitl.disturbance import EpisodeDisturbance
+
+    disturbance = load_sitl_config(config_path).disturbance
+
+    def weather_for(seed: int) -> SimWeather:
+        drawn = EpisodeDisturbance.draw(disturbance, seed)
+        return SimWeather(drawn.wind_ne_m_s, drawn.turbulence_w20_m_s)
+
+    start_height_m = s.start_height_above_pad_m - s.pad_ned_m[2]  # above the ground the vehicle took off from
+    return AutopilotSim(weather_for, start_height_m, s.sih_mass_scale, s.sih_drag_scale, disturb=s.autopilot_sim_disturbance)
+
+
+def _autopilot_sim(cfg: CompanionConfig, opts: RunOptions, simulator: SimulatorClient | None, link: VehicleLink,
+                   stack: contextlib.ExitStack) -> AutopilotSim | None:
+    """The run's :func:`autopilot_sim_for` when no simulator of ours flies it, put back as the run
+    ends (after the end of run: ``stack`` calls back last-in first)."""
+    sim = autopilot_sim_for(cfg, opts.config_path) if simulator is None else None
+    if sim is not None:
+        stack.callback(sim.restore, link)
+    return sim
+
+
 @dataclass(frozen=True)
 class Vehicle:
     """What a run flies: the link, the SITL's control surface (None on a real vehicle) and the
@@ -416,6 +447,7 @@ def run_episodes(cfg: CompanionConfig, opts: RunOptions,
             judge_radius_m=camera.success_radius_m if isinstance(camera, RenderedCamera) and simulator is None else None,
         )
         parts.lander = _lander_for(opts, link, camera)
+        parts.autopilot_sim = _autopilot_sim(cfg, opts, simulator, link, stack)
         if control is not None:
             control.started(opened, learner, dataset)
         episode_runner = EpisodeRunner(parts)

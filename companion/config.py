@@ -82,6 +82,13 @@ class SessionConfig(Section):
     end_of_run: Literal["land", "hold"] = Field(
         "land", description="after the last episode, Ctrl-C or an episode error: land or hold"
     )
+    autopilot_sim_disturbance: bool = Field(
+        False, description="a real autopilot's SITL (no simulator of ours): set its simulator's wind and turbulence "
+        "from [sitl.disturbance] at each episode start (ArduCopter SIM_WIND_*; PX4 SIH has no wind), docs/link.md")
+    sih_mass_scale: float = Field(
+        1.0, gt=0, le=5, description="PX4 SIH: SIH_MASS set to this x the value it had (a heavier vehicle than trained on)")
+    sih_drag_scale: float = Field(
+        1.0, gt=0, le=10, description="PX4 SIH: SIH_KDV (translational drag) set to this x the value it had")
 
 
 class SafetyConfig(Section):

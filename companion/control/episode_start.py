@@ -23,6 +23,7 @@ from companion.control.precland import PrecisionLander
 from companion.control.sequences import arm_when_ready, streaming, take_off, when_ready
 from companion.errors import ColError, CommandRejected, LinkError
 from companion.link.dialect import Dialect
+from companion.link.sim_params import AutopilotSim
 from companion.link.truth import ask_for_truth
 from companion.msg.snapshot import VehicleSnapshot
 from companion.simulator import SimulatorClient
@@ -41,6 +42,7 @@ class StartParts(Protocol):
     simulator: SimulatorClient | None
     lander: PrecisionLander | None
     truth_rate_hz: float
+    autopilot_sim: AutopilotSim | None
 
 
 class EpisodeStart:
@@ -77,7 +79,7 @@ class EpisodeStart:
             self.port.frame_ms = int(reply["time_boot_ms"])
             snap = self._wait_telemetry_after(self.port.frame_ms)
         else:
-            snap = self._fly_to_start(seed)
+            snap = self._fly_to_start(seed, notes)
             notes.append("started by flying to the start point")
         return self.ensure_offboard(snap, mode_known=self.simulator is None), notes
 
@@ -157,8 +159,8 @@ class EpisodeStart:
         raise LinkError("the vehicle did not report being in the air after the reset")
 
     # ----- as on a real vehicle ----------------------------------------------------------------------
-    def _fly_to_start(self, seed: int | None) -> VehicleSnapshot:
-        """Arm, take off, fly to a random start above the pad."""
+    def _fly_to_start(self, seed: int | None, notes: list[str]) -> VehicleSnapshot:
+        """Arm, take off, fly to a random start above the pad (its SITL disturbed first, if asked)."""
         cfg, port = self.cfg, self.port
         rng = np.random.default_rng(seed)
         pad = np.asarray(cfg.pad_ned_m, dtype=float)
@@ -169,6 +171,8 @@ class EpisodeStart:
         if not self._asked_truth:
             self._asked_truth = True
             ask_for_truth(port.link, snap.autopilot, self.parts.truth_rate_hz)
+        if self.parts.autopilot_sim is not None:
+            notes += self.parts.autopilot_sim.prepare_episode(port.link, snap.autopilot, 0 if seed is None else seed)
         if not snap.in_air:
             snap = self._take_off()
         if snap is not None:

@@ -26,6 +26,7 @@ from companion.control.safety import Geofence
 from companion.errors import ColError, LinkLost
 from companion.link.base import VehicleLink
 from companion.link.home import HomeFrame
+from companion.link.sim_params import AutopilotSim
 from companion.link.truth import TRUTH_RATE_HZ
 from companion.msg.setpoint import VelocitySetpoint
 from companion.msg.snapshot import VehicleSnapshot
@@ -43,6 +44,7 @@ class _StartParts:
     simulator: SimulatorClient | None
     lander: PrecisionLander | None = None
     truth_rate_hz: float = TRUTH_RATE_HZ
+    autopilot_sim: AutopilotSim | None = None  # a lane always has our simulator: it resets, never flies to a start
 
 
 class LinkLane:

@@ -20,6 +20,7 @@ from companion.inputs.base import HumanInput
 from companion.learning.dataset import HumanDataset
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect
+from companion.link.sim_params import AutopilotSim
 from companion.link.truth import TRUTH_RATE_HZ
 from companion.simulator import SimulatorClient
 from companion.vision.observer import Observer
@@ -70,3 +71,6 @@ class EpisodeParts:
     lander: PrecisionLander | None = None
     """The autopilot's own precision landing flies each episode after its start, fed with
     LANDING_TARGET (companion/control/precland.py); None: the person or the policy flies."""
+    autopilot_sim: AutopilotSim | None = None
+    """A real autopilot's SITL disturbed at each episode start (companion/link/sim_params.py,
+    ``[companion.session] autopilot_sim_disturbance``); None: its simulator as it is."""

@@ -235,6 +235,9 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("pilot", "set_down_by_picture"): False,
     ("pilot", "lead_moving_pad"): False,
     ("pilot", "lead_stick_per_m_s"): 0.5,
+    ("session", "autopilot_sim_disturbance"): False,
+    ("session", "sih_mass_scale"): 1.0,
+    ("session", "sih_drag_scale"): 1.0,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's

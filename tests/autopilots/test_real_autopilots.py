@@ -5,7 +5,8 @@ scenario runs against each in its own thread: the conformance script (compared w
 the same autopilot), ``col fly --pilot expert`` for three episodes with the camera rendered from
 the vehicle's telemetry (``--camera render``), a ``col eval`` of the checkpoint it wrote,
 interrupted with Ctrl-C in flight, and a listener on the companion's port after each run that
-watches what the vehicle does next.
+watches what the vehicle does next. The companion disturbs each autopilot's own simulator a
+little (:data:`SIM_EXTRA`): ArduCopter flies in wind, PX4 SIH heavier.
 
 Faster than real time (:data:`SPEEDUP`: PX4 SIH 4x, ArduCopter 5x, our SITL as each at the same
 speed; bench/README.md, "The real autopilots faster than real time", says why these): the
@@ -61,13 +62,22 @@ start_height_above_pad_m = 2.5
 start_xy_range_m = 0.5
 max_steps = 500
 pad_ned_m = [0.0, 0.0, 0.0]
-
+autopilot_sim_disturbance = true
+{session_extra}
 [companion.perception]
 camera = "render"
 
 [sitl.world]
 vehicle_height_m = 0.0
+
+[sitl.disturbance]
+level = 0.05
 """
+SIM_EXTRA = {"px4": "sih_mass_scale = 1.1\n", "ardupilot": ""}
+"""Each autopilot's SITL lightly disturbed (companion/link/sim_params.py): ArduCopter in a 0.5 m/s
+wind (level 0.05 of 10 m/s) with turbulence; PX4 SIH, which has no wind, 10 % heavier."""
+SIM_NOTES = {"px4": ("sim: SIH_MASS=1.1", "PX4 SIH has no wind"),
+             "ardupilot": ("sim: SIM_WIND_T=1, SIM_WIND_SPD=0.5, SIM_WIND_DIR=",)}
 EXPERT_EPISODES = 3
 LANDING_MODES = {"px4": {"LAND"}, "ardupilot": {"LAND"}}  # pymavlink's names of AUTO.LAND and LAND
 IN_FLIGHT_S = 3.0  # of the vehicle's time after the take-off: on the way to the start point
@@ -248,8 +258,9 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
             pytest.fail(why)
         pytest.skip(why)
     work = tmp_path_factory.mktemp("autopilots")
-    config = work / "short.toml"
-    config.write_text(SHORT)
+    configs = {kind: work / f"short-{kind}.toml" for kind in KINDS}
+    for kind, path in configs.items():
+        path.write_text(SHORT.format(session_extra=SIM_EXTRA[kind]))
     started_s = time.monotonic()
     started = {"px4": start_px4(root, work / "px4", speedup=SPEEDUP["px4"]),
                "ardupilot": start_ardupilot(root, work / "ardupilot", speedup=SPEEDUP["ardupilot"])}
@@ -271,7 +282,7 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
             ours[kind][0].stop()
 
     try:
-        threads = [threading.Thread(target=run_scenario, args=(results[k], started[k], config, work / f"run-{k}"))
+        threads = [threading.Thread(target=run_scenario, args=(results[k], started[k], configs[k], work / f"run-{k}"))
                    for k in KINDS] + [threading.Thread(target=fly_ours, args=(k,)) for k in KINDS]
         for t in threads:
             t.start()
@@ -306,6 +317,18 @@ def test_expert_episodes_end_in_touchdown(scenarios: dict[str, Scenario], kind: 
     assert min(r["touchdown_distance_m"] for r in landed) < 1.5, s.expert_records  # it steered to the pad
     summary = json.loads(s.expert.stdout.strip().splitlines()[-1])
     assert summary["frame_age_ms"]["p95"] < 500, summary  # frames rendered from fresh telemetry
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_each_episode_sets_its_autopilots_own_simulator_as_asked(scenarios: dict[str, Scenario], kind: str) -> None:
+    s = scenarios[kind]
+    assert s.expert is not None and s.expert.returncode == 0, _why(s)
+    for record in s.expert_records:  # every value confirmed by the vehicle's echo, else the episode is an error
+        notes = " | ".join(record["notes"])
+        assert all(n in notes for n in SIM_NOTES[kind]), notes
+    if kind == "ardupilot":  # the direction is drawn per episode, as our SITL draws it
+        directions = {n.split("SIM_WIND_DIR=")[1].split(",")[0] for r in s.expert_records for n in r["notes"] if "SIM_WIND_DIR=" in n}
+        assert len(directions) == EXPERT_EPISODES, directions
 
 
 @pytest.mark.parametrize("kind", KINDS)
