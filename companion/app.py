@@ -48,7 +48,7 @@ from companion.link.base import VehicleLink
 from companion.link.connection import parse_connection
 from companion.link.dialect import Dialect, dialect_for
 from companion.link.signing import read_key
-from companion.link.sim_params import AutopilotSim, SimWeather
+from companion.link.sim_params import AutopilotSim, SimEpisode
 from companion.msg.episode import EpisodeRecord
 from companion.msg.observation import Observation
 from companion.run_folder import prepare_run_dir, removed_if_unused
@@ -329,12 +329,12 @@ def autopilot_sim_for(cfg: CompanionConfig, config_path: Path | None) -> Autopil
 
     disturbance = load_sitl_config(config_path).disturbance
 
-    def weather_for(seed: int) -> SimWeather:
+    def episode_for(seed: int) -> SimEpisode:
         drawn = EpisodeDisturbance.draw(disturbance, seed)
-        return SimWeather(drawn.wind_ne_m_s, drawn.turbulence_w20_m_s)
+        return SimEpisode(drawn.wind_ne_m_s, drawn.turbulence_w20_m_s, drawn.vehicle_velocity_ne_m_s)
 
     start_height_m = s.start_height_above_pad_m - s.pad_ned_m[2]  # above the ground the vehicle took off from
-    return AutopilotSim(weather_for, start_height_m, s.sih_mass_scale, s.sih_drag_scale, disturb=s.autopilot_sim_disturbance)
+    return AutopilotSim(episode_for, start_height_m, s.sih_mass_scale, s.sih_drag_scale, disturb=s.autopilot_sim_disturbance)
 
 
 def _autopilot_sim(cfg: CompanionConfig, opts: RunOptions, simulator: SimulatorClient | None, link: VehicleLink,

@@ -117,6 +117,7 @@ class EpisodeRunner:
             self._leave_safe_after_error()
             return self._record(episode, phase, seed, 0, "error", None, None, 0, wall0, [f"start failed: {exc}"])
         t0_ms = first.time_boot_ms
+        self._begin_rendered_world(t0_ms, seed)
         snap: VehicleSnapshot | None = first
         outcome, version, steps = "timeout", None, 0
         try:
@@ -253,11 +254,29 @@ class EpisodeRunner:
             raise lost
         return choice.version
 
+    def _begin_rendered_world(self, handover_ms: int, seed: int | None) -> None:
+        """A rendered camera's pad back at its point at the hand-over, driving from there with the
+        episode's drift (companion/vision/rendered.py); our SITL's reset does this itself."""
+        begin = getattr(self.p.observer.camera, "begin_episode", None)
+        if begin is None or self.p.simulator is not None:
+            return
+        sim = self.p.autopilot_sim
+        begin(handover_ms, sim.pad_drift_for(0 if seed is None else seed) if sim is not None else (0.0, 0.0))
+
+    def _pad_ned_at(self, snap: VehicleSnapshot | None) -> tuple[float, float, float]:
+        """Where the pad is as the episode ends: a rendered camera's pad may drive."""
+        pad = self.p.cfg.pad_ned_m
+        pad_at = getattr(self.p.observer.camera, "pad_ne_at", None)
+        if pad_at is None or snap is None or self.p.simulator is not None:
+            return pad
+        north, east = pad_at(snap.time_boot_ms)
+        return (north, east, pad[2])
+
     def _record(self, episode: int, phase: Phase, seed: int | None, steps: int, outcome: str,
                 version: int | None, snap: VehicleSnapshot | None, t0_ms: int, wall0: float,
                 notes: list[str]) -> EpisodeRecord:
         simulator = self.p.simulator
-        result, said = outcome_rule.score_vehicle(outcome, snap, self.home, self.p.cfg.pad_ned_m,
+        result, said = outcome_rule.score_vehicle(outcome, snap, self.home, self._pad_ned_at(snap),
                                                   judge_radius_m=self.p.judge_radius_m,
                                                   simulator_truth=simulator.truth if simulator is not None else None)
         notes.extend(said)

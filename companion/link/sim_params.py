@@ -12,6 +12,9 @@ What maps to what (docs/link.md, "Disturbances on the real autopilots"):
   MIL-F-8785C's horizontal intensity at the start height, sigma_u = 0.1 W20 / (0.177 + 0.000823 h
   [ft])^0.4. The two differ in spectrum and in direction (ArduPilot's turns at random): a level,
   not a replica. PX4 SIH: none.
+- **the ground vehicle driving** (our ``vehicle_speed_max_m_s`` x level, direction drawn per
+  episode): not the autopilot's, the rendered camera's: its pad drives at ``[sitl.world]``'s
+  velocity plus this from each episode's hand-over (:meth:`AutopilotSim.pad_drift_for`).
 - **a heavier or draggier vehicle** than the one a policy was trained on (no equivalent in our
   SITL's level): PX4 SIH ``SIH_MASS`` and ``SIH_KDV`` (translational drag), each the value the
   autopilot had when first asked, times ``[companion.session] sih_mass_scale`` / ``sih_drag_scale``.
@@ -39,12 +42,14 @@ ARDUPILOT, PX4 = "ARDUPILOTMEGA", "PX4"  # the HEARTBEAT's autopilot, as the sna
 
 
 @dataclass(frozen=True)
-class SimWeather:
-    """One episode's air, as our SITL draws it (sitl/disturbance.py): where the wind blows to,
-    and the turbulence's MIL-F-8785C wind speed at 20 ft."""
+class SimEpisode:
+    """One episode's disturbance as our SITL draws it (sitl/disturbance.py): where the wind blows
+    to, the turbulence's MIL-F-8785C wind speed at 20 ft, and the ground vehicle's drive added
+    to ``[sitl.world]``'s (the rendered camera's moving pad: companion/vision/rendered.py)."""
 
     wind_ne_m_s: tuple[float, float] = (0.0, 0.0)
     turbulence_w20_m_s: float = 0.0
+    pad_drift_ne_m_s: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -71,7 +76,7 @@ def wind_from_deg(wind_ne_m_s: tuple[float, float]) -> float:
     return math.degrees(math.atan2(-east, -north)) % 360.0
 
 
-def ardupilot_weather(weather: SimWeather, height_m: float) -> tuple[Param, ...]:
+def ardupilot_weather(weather: SimEpisode, height_m: float) -> tuple[Param, ...]:
     """ArduPilot's SIM_WIND_* for one episode's air (module docstring)."""
     return (Param("SIM_WIND_T", WIND_TYPE_NO_LIMIT),
             Param("SIM_WIND_SPD", round(math.hypot(*weather.wind_ne_m_s), 4)),
@@ -91,22 +96,22 @@ def px4_sih_body(found: dict[str, float], mass_scale: float, drag_scale: float) 
 class AutopilotSim:
     """Sets a real autopilot's SITL parameters per episode (module docstring).
 
-    ``weather_for(seed)``: the episode's air (the wiring draws it with our SITL's own rule, so
+    ``episode_for(seed)``: the episode's air (the wiring draws it with our SITL's own rule, so
     the same seed gives the same wind on every vehicle); ``height_m``: the start height above
     the ground, where turbulence is sized."""
 
-    def __init__(self, weather_for: Callable[[int], SimWeather], height_m: float,
+    def __init__(self, episode_for: Callable[[int], SimEpisode], height_m: float,
                  mass_scale: float = 1.0, drag_scale: float = 1.0, disturb: bool = True) -> None:
         if not (mass_scale > 0 and drag_scale > 0):
             raise ConfigError(f"sih_mass_scale and sih_drag_scale must be positive (got {mass_scale:g}, {drag_scale:g})")
-        self.weather_for, self.height_m = weather_for, height_m
+        self.episode_for, self.height_m = episode_for, height_m
         self.mass_scale, self.drag_scale, self.disturb = mass_scale, drag_scale, disturb
         self.found: dict[str, float] = {}  # each parameter as the vehicle had it before the first set
 
     def params_for(self, autopilot: str, seed: int) -> tuple[tuple[Param, ...], list[str]]:
         """What to set on this autopilot for this episode, and notes on what cannot be."""
-        weather = self.weather_for(seed)
-        calm = weather == SimWeather()
+        weather = self.episode_for(seed)
+        calm = weather.wind_ne_m_s == (0.0, 0.0) and weather.turbulence_w20_m_s == 0.0
         if autopilot == ARDUPILOT:
             if self.mass_scale != 1.0 or self.drag_scale != 1.0:
                 raise ConfigError("sih_mass_scale / sih_drag_scale set a PX4 SIH vehicle's SIH_MASS / SIH_KDV; "
@@ -119,6 +124,10 @@ class AutopilotSim:
             return px4_sih_body(self.found, self.mass_scale, self.drag_scale), notes
         raise ConfigError(f"autopilot_sim_disturbance: {autopilot!r} is not an autopilot SITL this knows "
                           "(ArduCopter SITL or PX4 SIH); turn it off for a real vehicle")
+
+    def pad_drift_for(self, seed: int) -> tuple[float, float]:
+        """The ground vehicle's drive this episode (north, east; m/s), added to the rendered world's."""
+        return self.episode_for(seed).pad_drift_ne_m_s if self.disturb else (0.0, 0.0)
 
     def prepare_episode(self, link: VehicleLink, autopilot: str, seed: int) -> list[str]:
         """Set this episode's parameters (each echo checked): notes for the episode record."""

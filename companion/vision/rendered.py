@@ -4,7 +4,11 @@ telemetry (``--camera render``).
 Real PX4 SIH and ArduCopter SITL render nothing. This source renders, at ``rate_hz``, the
 downward view our SITL would render for the vehicle's pose, with the pad at ``pad_ne_m`` of the
 vehicle's local frame on the ground vehicle of ``[sitl.world]`` (static, or driving at its set
-velocity from the first frame). The pose is, per frame:
+velocity, turning and changing speed as configured). A driving pad is put back at ``pad_ne_m``
+at each episode's hand-over (:meth:`RenderedCamera.begin_episode`, with the episode's drift from
+``[sitl.disturbance]`` where the companion disturbs the autopilot's SITL: companion/link/sim_params.py),
+as our SITL's reset puts it, and the touchdown is scored against where it then is
+(:meth:`RenderedCamera.pad_ne_at`). The pose is, per frame:
 
 - **the truth** where the autopilot's SITL sends one (the snapshot's ``true_pose``: PX4 SIH's
   HIL_STATE_QUATERNION, ArduPilot's SIM_STATE; companion/link/truth.py) and it is fresh (heard
@@ -133,6 +137,7 @@ class RenderedCamera:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self._state, self._clock = state, clock
         self._world = World(world)
+        self._world_lock = threading.Lock()  # an episode's restart against the render thread's frame
         self._renderer = CameraRenderer(camera, self._world)
         self.pad_ne_m = (float(pad_ne_m[0]), float(pad_ne_m[1]))
         self.success_radius_m = world.success_radius_m
@@ -197,23 +202,40 @@ class RenderedCamera:
         truth puts it (``pad_ne_m`` of the true local frame), down from the true ground."""
         return self._in_world(self.true_ground.relative(pose), pose.time_boot_ms)
 
-    def _in_world(self, ned_m: Vec3, time_boot_ms: int) -> tuple[tuple[float, float, float], float]:
-        n, e, d = ned_m
+    def _world_time_s(self, time_boot_ms: int) -> float:
         if self._t0_ms is None:
             self._t0_ms = time_boot_ms
-        t_s = max(0.0, (time_boot_ms - self._t0_ms) / 1000.0)
-        return (n - self.pad_ne_m[0], e - self.pad_ne_m[1], d), t_s
+        return max(0.0, (time_boot_ms - self._t0_ms) / 1000.0)
+
+    def _in_world(self, ned_m: Vec3, time_boot_ms: int) -> tuple[tuple[float, float, float], float]:
+        n, e, d = ned_m
+        return (n - self.pad_ne_m[0], e - self.pad_ne_m[1], d), self._world_time_s(time_boot_ms)
+
+    def begin_episode(self, time_boot_ms: int, drift_ne_m_s: tuple[float, float] = (0.0, 0.0)) -> None:
+        """The ground vehicle back at ``pad_ne_m`` at the vehicle time ``time_boot_ms`` (the
+        episode's hand-over), driving at ``[sitl.world]``'s velocity plus ``drift_ne_m_s`` from
+        then on. A still pad stays where it is."""
+        with self._world_lock:
+            self._world.restart(self._world_time_s(time_boot_ms), drift_ne_m_s)
+
+    def pad_ne_at(self, time_boot_ms: int) -> tuple[float, float]:
+        """Where the pad is at the vehicle time ``time_boot_ms``, in the vehicle's local frame."""
+        with self._world_lock:
+            n, e = self._world.position_ne(self._world_time_s(time_boot_ms))
+        return (self.pad_ne_m[0] + float(n), self.pad_ne_m[1] + float(e))
 
     def render(self, snap: VehicleSnapshot) -> Frame:
         """The frame for one snapshot's estimate."""
         position, t_s = self.world_pose(snap)
-        image = self._renderer.render(position, snap.attitude_rad, t_s)
+        with self._world_lock:
+            image = self._renderer.render(position, snap.attitude_rad, t_s)
         return Frame(self._number, max(0, int(snap.time_boot_ms)), image)
 
     def render_truth(self, pose: TruePose) -> Frame:
         """The frame for one true pose, stamped with the truth's vehicle time."""
         position, t_s = self.true_world_pose(pose)
-        image = self._renderer.render(position, pose.attitude_rad, t_s)
+        with self._world_lock:
+            image = self._renderer.render(position, pose.attitude_rad, t_s)
         return Frame(self._number, pose.time_boot_ms, image)
 
     def fresh_truth(self, snap: VehicleSnapshot, now_s: float) -> TruePose | None:

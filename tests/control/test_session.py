@@ -548,3 +548,70 @@ def test_the_operator_can_end_an_episode_while_the_link_is_lost(monkeypatch: pyt
     record = runner.run(0, Phase.AUTONOMOUS, seed=1)
     assert record.outcome == "stopped" and operator.asked_while_lost == 1
     assert record.steps < 10 and "link" in " ".join(record.notes)
+
+
+class FlyToLink(KinematicLink):
+    """A vehicle without a simulator: position setpoints put it there (the flight to the start)."""
+
+    def send_position_ned(self, north: float, east: float, down: float, *args: float,  # type: ignore[override]
+                          echo_time_boot_ms: int | None = None) -> None:
+        self.pos = np.array([north, east, down], dtype=float)
+        self.vel = np.zeros(3)
+
+
+class DrivingPadCamera:
+    """The rendered camera's pad world, as the session sees it: no frames, a pad that drives."""
+
+    def __init__(self, velocity_ne_m_s: tuple[float, float]) -> None:
+        self.velocity = velocity_ne_m_s
+        self.begun: list[tuple[int, tuple[float, float]]] = []
+
+    def begin_episode(self, time_boot_ms: int, drift_ne_m_s: tuple[float, float] = (0.0, 0.0)) -> None:
+        self.begun.append((time_boot_ms, drift_ne_m_s))
+
+    def pad_ne_at(self, time_boot_ms: int) -> tuple[float, float]:
+        t0, drift = self.begun[-1]
+        dt = (time_boot_ms - t0) / 1000.0
+        return ((self.velocity[0] + drift[0]) * dt, (self.velocity[1] + drift[1]) * dt)
+
+    def open(self) -> None: ...
+    def latest(self):  # type: ignore[no-untyped-def]
+        return None
+
+    def frame_at(self, time_boot_ms: int, timeout_s: float):  # type: ignore[no-untyped-def]
+        return None
+
+    def close(self) -> None: ...
+
+
+class DisturbedSim:
+    """The autopilot's SITL disturbance, as the episode start and the session ask it."""
+
+    def __init__(self) -> None:
+        self.prepared: list[int] = []
+
+    def prepare_episode(self, link: VehicleLink, autopilot: str, seed: int) -> list[str]:
+        self.prepared.append(seed)
+        return [f"sim: episode {seed}"]
+
+    def pad_drift_for(self, seed: int) -> tuple[float, float]:
+        return (0.0, 0.5)
+
+
+def test_without_a_simulator_the_rendered_pad_drives_from_the_hand_over_and_the_touchdown_is_scored_where_it_is() -> None:
+    link = FlyToLink((0.0, 0.0, -3.0))
+    camera = DrivingPadCamera((1.0, 0.0))
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=300)
+    runner.p.simulator = None
+    runner.p.observer = Observer(camera, PadDetector(), (320, 240))  # type: ignore[arg-type]
+    runner.p.autopilot_sim = DisturbedSim()  # type: ignore[assignment]
+    runner.p.judge_radius_m = 0.5
+    record = runner.run(0, Phase.DEMONSTRATION, seed=7)
+    assert record.outcome == "touchdown", record.notes
+    assert "sim: episode 7" in record.notes and "started by flying to the start point" in record.notes
+    assert len(camera.begun) == 1 and camera.begun[0][1] == (0.0, 0.5)  # the hand-over, with the episode's drift
+    pad_n, pad_e = camera.pad_ne_at(link.t_ms)  # where the pad drove to by the touchdown
+    assert (pad_n, pad_e) != (0.0, 0.0)
+    landed = math.hypot(link.pos[0] - pad_n, link.pos[1] - pad_e)
+    assert record.touchdown_distance_m == pytest.approx(landed, abs=0.02)
+    assert record.touchdown_distance_m != pytest.approx(math.hypot(link.pos[0], link.pos[1]), abs=0.02)

@@ -15,7 +15,7 @@ from companion.link.sim_params import (
     ARDUPILOT,
     PX4,
     AutopilotSim,
-    SimWeather,
+    SimEpisode,
     ardupilot_weather,
     milspec_sigma_u,
     wind_from_deg,
@@ -63,7 +63,7 @@ def test_turbulence_is_milspec_horizontal_intensity_at_the_start_height() -> Non
 
 
 def test_ardupilot_gets_the_same_wind_at_every_height() -> None:
-    params = {p.name: p.value for p in ardupilot_weather(SimWeather((0.0, -2.0), 1.0), 9.5)}
+    params = {p.name: p.value for p in ardupilot_weather(SimEpisode((0.0, -2.0), 1.0), 9.5)}
     assert params["SIM_WIND_T"] == 1  # not ArduPilot's default, which weakens it below 60 m
     assert params["SIM_WIND_SPD"] == pytest.approx(2.0)
     assert params["SIM_WIND_DIR"] == pytest.approx(90.0)
@@ -76,9 +76,10 @@ def test_a_seed_gives_the_air_our_sitl_would_fly_it_in(tmp_path: Path) -> None:
     sim = autopilot_sim_for(load_companion_config(path), path)
     assert sim is not None
     ours = EpisodeDisturbance.draw(load_sitl_config(path).disturbance, 7)
-    assert sim.weather_for(7) == SimWeather(ours.wind_ne_m_s, ours.turbulence_w20_m_s)
-    assert math.hypot(*sim.weather_for(7).wind_ne_m_s) == pytest.approx(0.2 * 10.0)
-    assert sim.weather_for(7) != sim.weather_for(8)  # the direction is drawn per episode
+    assert sim.episode_for(7) == SimEpisode(ours.wind_ne_m_s, ours.turbulence_w20_m_s, ours.vehicle_velocity_ne_m_s)
+    assert sim.pad_drift_for(7) == ours.vehicle_velocity_ne_m_s != (0.0, 0.0)
+    assert math.hypot(*sim.episode_for(7).wind_ne_m_s) == pytest.approx(0.2 * 10.0)
+    assert sim.episode_for(7) != sim.episode_for(8)  # the direction is drawn per episode
     assert sim.height_m == pytest.approx(8.0 + 1.5)  # the start, above the ground the vehicle left
 
 
@@ -88,7 +89,7 @@ def test_nothing_asked_builds_nothing(tmp_path: Path) -> None:
 
 def test_arducopter_episode_sets_its_wind_and_the_run_puts_it_back() -> None:
     vehicle = ParamVehicle(ARDUCOPTER_PARAMS)
-    sim = AutopilotSim(lambda seed: SimWeather((float(seed), 0.0), 2.0), height_m=9.5)
+    sim = AutopilotSim(lambda seed: SimEpisode((float(seed), 0.0), 2.0), height_m=9.5)
     notes = sim.prepare_episode(vehicle, ARDUPILOT, 3)  # type: ignore[arg-type]
     assert vehicle.params["SIM_WIND_SPD"] == 3.0 and vehicle.params["SIM_WIND_DIR"] == 180.0
     assert vehicle.params["SIM_WIND_T"] == 1.0 and vehicle.params["SIM_WIND_TURB"] > 0
@@ -101,7 +102,7 @@ def test_arducopter_episode_sets_its_wind_and_the_run_puts_it_back() -> None:
 
 def test_px4_sih_gets_a_heavier_vehicle_once_and_says_it_has_no_wind() -> None:
     vehicle = ParamVehicle(SIH_PARAMS)
-    sim = AutopilotSim(lambda seed: SimWeather((1.0, 0.0), 0.5), height_m=9.5, mass_scale=1.5, drag_scale=2.0)
+    sim = AutopilotSim(lambda seed: SimEpisode((1.0, 0.0), 0.5), height_m=9.5, mass_scale=1.5, drag_scale=2.0)
     for seed in (0, 1):  # scaled from what it had, never compounded episode after episode
         notes = sim.prepare_episode(vehicle, PX4, seed)  # type: ignore[arg-type]
         assert vehicle.params == {"SIH_MASS": 1.5, "SIH_KDV": 2.0}
@@ -113,7 +114,7 @@ def test_px4_sih_gets_a_heavier_vehicle_once_and_says_it_has_no_wind() -> None:
 
 def test_a_value_the_vehicle_does_not_echo_is_an_error_not_a_silent_calm() -> None:
     def sim() -> AutopilotSim:
-        return AutopilotSim(lambda seed: SimWeather((2.0, 0.0), 0.0), height_m=9.5)
+        return AutopilotSim(lambda seed: SimEpisode((2.0, 0.0), 0.0), height_m=9.5)
 
     with pytest.raises(CommandRejected, match="SIM_WIND_T=1: NOT_CONFIRMED"):
         sim().prepare_episode(ParamVehicle(ARDUCOPTER_PARAMS, echo_offset=0.5), ARDUPILOT, 0)  # type: ignore[arg-type]
@@ -123,8 +124,8 @@ def test_a_value_the_vehicle_does_not_echo_is_an_error_not_a_silent_calm() -> No
 
 def test_settings_that_cannot_apply_are_refused_clearly() -> None:
     with pytest.raises(ConfigError, match="PX4 SIH"):
-        AutopilotSim(lambda seed: SimWeather(), 9.5, mass_scale=2.0).params_for(ARDUPILOT, 0)
+        AutopilotSim(lambda seed: SimEpisode(), 9.5, mass_scale=2.0).params_for(ARDUPILOT, 0)
     with pytest.raises(ConfigError, match="turn it off for a real vehicle"):
-        AutopilotSim(lambda seed: SimWeather(), 9.5).params_for("SOMETHING_ELSE", 0)
+        AutopilotSim(lambda seed: SimEpisode(), 9.5).params_for("SOMETHING_ELSE", 0)
     with pytest.raises(ConfigError, match="positive"):
-        AutopilotSim(lambda seed: SimWeather(), 9.5, drag_scale=0.0)
+        AutopilotSim(lambda seed: SimEpisode(), 9.5, drag_scale=0.0)

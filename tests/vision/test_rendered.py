@@ -79,3 +79,32 @@ def test_a_non_finite_pose_is_no_frame_not_a_crash() -> None:
     state = {"snap": snapshot(float("nan"), 0.0, -4.0)}
     cam = RenderedCamera(lambda: state["snap"], CameraConfig(), WorldConfig(), clock=Clock())
     assert cam.step() is None and "unusable pose" in (cam.no_telemetry or "")
+
+
+def test_a_driving_pad_starts_again_at_its_point_at_each_hand_over_and_is_drawn_where_it_drove() -> None:
+    world = WorldConfig(vehicle_height_m=0.0, vehicle_velocity_ne_m_s=(1.0, 0.0))
+    state = {"snap": snapshot(4.0, -2.0, -5.0, t_ms=1000)}
+    cam = RenderedCamera(lambda: state["snap"], CameraConfig(), world, pad_ne_m=(4.0, -2.0), clock=Clock())
+    cam.step()  # the world's clock starts at the first frame; the pad drives during the flight to the start
+    assert cam.pad_ne_at(31_000) == pytest.approx((34.0, -2.0))
+    cam.begin_episode(31_000, drift_ne_m_s=(0.0, 0.5))  # the hand-over: back at its point, with the episode's drift
+    assert cam.pad_ne_at(31_000) == pytest.approx((4.0, -2.0))
+    assert cam.pad_ne_at(33_000) == pytest.approx((6.0, -1.0))  # 2 s at (1, 0.5) m/s
+    detector = PadDetector(PerceptionConfig())
+    seen = []
+    for t_ms in (31_000, 33_000):  # the vehicle hovers over the pad's point: the pad drives out from under it
+        state["snap"] = snapshot(4.0, -2.0, -5.0, t_ms=t_ms, received_s=10.0)
+        frame = cam.step()
+        assert frame is not None
+        pad = detector.detect(frame.image)
+        assert pad is not None
+        seen.append((pad.u_px, pad.v_px))
+    assert seen[0] != pytest.approx(seen[1], abs=5.0)  # drawn where it drove, not where it started
+
+
+def test_a_still_pad_stays_where_it_is_at_every_hand_over() -> None:
+    state = {"snap": snapshot(0.0, 0.0, -5.0)}
+    cam = RenderedCamera(lambda: state["snap"], CameraConfig(), WorldConfig(), pad_ne_m=(1.0, 2.0), clock=Clock())
+    cam.step()
+    cam.begin_episode(50_000)
+    assert cam.pad_ne_at(90_000) == (1.0, 2.0)
