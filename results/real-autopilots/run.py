@@ -90,6 +90,12 @@ def main() -> None:
     parser.add_argument("--set-down-by-picture", action="store_true",
                         help="[companion.pilot] set_down_by_picture: once committed, the expert still steers by a "
                              "partial pad whose centre is in the picture (RENDER.md, 2026-12-05)")
+    parser.add_argument("--disturbance", type=float, default=None, metavar="LEVEL",
+                        help="[sitl.disturbance] level, set in each autopilot's own SITL per episode "
+                             "([companion.session] autopilot_sim_disturbance: ArduCopter's wind and turbulence, the "
+                             "rendered pad's drive; docs/link.md)")
+    parser.add_argument("--sih-mass-scale", type=float, default=1.0,
+                        help="PX4 SIH's SIH_MASS times this ([companion.session] sih_mass_scale)")
     parser.add_argument("--speedup", type=float, default=1.0,
                         help="the autopilots this many times real time (PX4_SIM_SPEED_FACTOR, --speedup), flown "
                              "by the vehicle's clock")
@@ -103,6 +109,11 @@ def main() -> None:
     text = CONFIG if args.camera == "still" else RENDER
     if args.speedup != 1.0:
         text = text.replace("[companion.session]\n", '[companion.session]\nclock = "vehicle"\n', 1)
+    if args.disturbance is not None:
+        text = text.replace("[companion.session]\n", "[companion.session]\nautopilot_sim_disturbance = true\n", 1)
+        text += f"\n[sitl.disturbance]\nlevel = {args.disturbance:g}\n"
+    if args.sih_mass_scale != 1.0:
+        text = text.replace("[companion.session]\n", f"[companion.session]\nsih_mass_scale = {args.sih_mass_scale:g}\n", 1)
     if args.set_down_by_picture:
         text += "\n[companion.pilot]\nset_down_by_picture = true\n"
     config.write_text(text)
