@@ -184,3 +184,16 @@ def test_precland_is_better_only_where_its_wilson_interval_is_above_the_policies
     assert summarise.precland_better(below, "precland-px4", "col", "colour")["speeds"] == ["1.0"]
     assert summarise.precland_better(_speeds((100, 100), [97.0] * 8), "precland-px4", "col", "colour")["speeds"] == []
     assert summarise.precland_better(_speeds((100, 100), [97.0]), "precland-px4", "col", "colour")["undecided"] == ["1.0"]
+
+
+@pytest.mark.parametrize("speed", ["0.5", "1.0", "1.5"])
+def test_the_real_autopilots_precision_landing_sees_the_board_on_a_pad_that_drives_at_the_speed(
+        speed: str, tmp_path: Path) -> None:
+    path = tmp_path / run.real_config_path(speed).name
+    path.write_text(run.real_config_text(speed))
+    cfg, sitl = load_companion_config(path), load_sitl_config(path)
+    assert cfg.perception.camera == "render" and sitl.camera.pad_marker == "aruco"
+    assert cfg.session.autopilot_sim_disturbance and cfg.session.clock == "vehicle"
+    drive = EpisodeDisturbance.draw(sitl.disturbance, 100_000).vehicle_velocity_ne_m_s
+    assert math.hypot(*drive) == pytest.approx(float(speed), abs=1e-12)
+    assert sitl.world.vehicle_height_m == 0.0 and cfg.session.pad_ned_m == (0.0, 0.0, 0.0)

@@ -6,6 +6,7 @@ Steps, each resumable on its own (a step whose kept output exists is skipped):
 
     python results/moving-pad/sweep/run.py configs                  # the task's config files, from configs/paper.toml
     python results/moving-pad/sweep/run.py fly precland-px4 0.5     # one arm at one pad speed (m/s)
+    python results/moving-pad/sweep/run.py fly-real ardupilot 1.0   # precision landing on a real autopilot's SITL
     python results/moving-pad/sweep/run.py policies 0.5             # Demo@20 / CoL@20, P1-P4 x replicates 0-1, trained
                                                                     # at that speed, then each flown on the ArUco pad
     python results/moving-pad/sweep/run.py verify 0.5               # col experiment --verify: 2 trials rerun
@@ -365,6 +366,75 @@ def fly_external(arm: str, speed: str, run_dir: Path, episodes: int, log: Path) 
                          f"what the plan says; {_rel(run_dir)} kept, episodes not")
 
 
+REAL_SPEEDUP = {"ardupilot": 5.0, "px4": 4.0}  # as the real-autopilot tests run them (docs/link.md)
+
+
+def real_config_path(speed: str) -> Path:
+    return CONFIGS / f"real-precland-speed-{speed}.toml"
+
+
+def real_config_text(speed: str) -> str:
+    """Precision landing on a real autopilot's SITL: the board drawn by the rendered camera (from
+    the SITL's truth) on a pad that drives as the sweep's does, from each episode's hand-over, in
+    the SITL's own wind at the task's level where it has one (docs/link.md)."""
+    return header(real_config_path(speed).name, speed, "a real autopilot's SITL, the rendered camera, the ArUco board") + f"""
+[companion.session]
+clock = "vehicle"  # the autopilot runs faster than real time: steps by its time_boot_ms
+pad_ned_m = [0.0, 0.0, 0.0]  # the pad on the autopilot's own ground
+start_height_above_pad_m = 8.0  # our SITL's start box
+start_xy_range_m = 3.0
+autopilot_sim_disturbance = true  # its SITL's wind and turbulence at the level, the rendered pad's drive
+
+[companion.perception]
+camera = "render"
+
+[sitl.camera]
+pad_marker = "aruco"
+
+[sitl.world]
+vehicle_height_m = 0.0
+
+[sitl.disturbance]
+level = {LEVEL}
+vehicle_speed_max_m_s = {toml_value(speed_max(speed))}  # x level {LEVEL} = {speed} m/s, exactly (the sweep)
+"""
+
+
+def fly_real(autopilot: str, speed: str, episodes: int, runs: Path) -> None:
+    """The autopilot's own precision landing on a real autopilot's SITL (the plan's "at one or two
+    speeds also on real ArduCopter / PX4 SIH with the rendered camera"): started fresh at its
+    speed-up, ArduCopter's PLND_* with the moving-target option set (and rebooted) as in our
+    SITL's arm, then ``col fly --pilot precland``; the parameters read back afterwards."""
+    from companion.testing.autopilots import find_autopilots, start_ardupilot, start_px4
+
+    name = f"precland-{autopilot}-real-speed-{speed}"
+    kept = kept_path(name, episodes, runs)
+    if kept.exists():
+        print(f"{_rel(kept)} exists: {name} done")
+        return
+    root, why = find_autopilots()
+    if root is None:
+        raise SystemExit(why)
+    config = real_config_path(speed)
+    config.write_text(real_config_text(speed))
+    run_dir = runs / name if episodes == STARTS else runs / "checks" / f"{name}-{episodes}"
+    shutil.rmtree(run_dir, ignore_errors=True)
+    params = PLND_MOVING_TARGET if autopilot == "ardupilot" else ()
+    start = start_ardupilot if autopilot == "ardupilot" else start_px4
+    with start(root, runs / "autopilots" / name, speedup=REAL_SPEEDUP[autopilot]) as ap:
+        prepared = prepare_vehicle(ap.connection, params) if params else {}
+        _run([col(), "fly", *PRECLAND, "--config", _rel(config), "--episodes", str(episodes), "--seed", str(FIRST_START),
+              "--run-dir", _rel(run_dir), "--no-pictures", "--connect", ap.connection], run_dir.parent / f"{run_dir.name}.log")
+        after = read_params(ap.connection, [n for n, _, _ in params]) if params else {}
+    note = {"autopilot": autopilot, "speedup": REAL_SPEEDUP[autopilot], "config": _rel(config),
+            "params_set": {n: v for n, v, _ in params}, **prepared, "params_after_run": after}
+    (run_dir / "external_sitl.json").write_text(json.dumps(note, indent=1, sort_keys=True) + "\n")
+    if any(after.get(n) != v for n, v, _ in params):
+        raise SystemExit(f"{name}: after the run the vehicle had {after}, not {note['params_set']}; episodes not kept")
+    _keep(run_dir / "episodes.jsonl", kept)
+    print(f"kept {_rel(kept)}")
+
+
 def _autopilot_link(connect: str, timeout_s: float) -> Any:
     """A pymavlink connection that has heard the autopilot (component 1)."""
     from pymavlink import mavutil
@@ -620,6 +690,10 @@ def parser() -> argparse.ArgumentParser:
     one.add_argument("arm", choices=tuple(ARMS))
     one.add_argument("speed", type=speed_name)
     one.add_argument("--episodes", type=int, default=STARTS, help="a check: this many starts (kept under the runs folder)")
+    real = sub.add_parser("fly-real", help="precision landing on a real autopilot's SITL, the rendered camera")
+    real.add_argument("autopilot", choices=tuple(REAL_SPEEDUP))
+    real.add_argument("speed", type=speed_name)
+    real.add_argument("--episodes", type=int, default=STARTS, help="a check: this many starts (kept under the runs folder)")
     pol = sub.add_parser("policies", help="the grid of one speed, then its policies on the ArUco pad")
     pol.add_argument("speed", type=speed_name)
     pol.add_argument("--conditions", type=parse_conditions, default=None, help="e.g. demo,col,colplus (default: the config's)")
@@ -644,6 +718,8 @@ def main() -> None:
         print(f"{len(written)} config files in {_rel(CONFIGS)}")
     elif args.step == "fly":
         fly(args.arm, args.speed, args.episodes, runs)
+    elif args.step == "fly-real":
+        fly_real(args.autopilot, args.speed, args.episodes, runs)
     elif args.step == "policies":
         policies(args.speed, args.conditions, args.episodes, runs, args.workers, args.aruco)
     elif args.step == "verify":
