@@ -84,6 +84,16 @@ def write_configs() -> None:
     for path, text in config_texts().items():
         path.write_text(text)
         print(f"wrote {path.relative_to(ROOT)}")
+    step_record("configs")
+
+
+def step_record(step: str, **context: object) -> None:
+    """The step's own line in environment.jsonl: the commit its files came from and this
+    process's environment (a retraining ran in the paper grid's recorded one, which
+    ``--verify`` sets; its verdict's ``environment_differences`` says what differed)."""
+    from colcommon.numeric_env import append_record
+
+    append_record(HERE, step=step, command=["results/transfer/run.py", step], **context)
 
 
 def col() -> str:
@@ -121,6 +131,8 @@ def checkpoints(keys: tuple[str, ...], runs: Path) -> None:
                      if f'"key": "{key}"' in line)  # relative to the grid's folder: trials/KEY/...
         shutil.copyfile(keep / key / final, CHECKPOINTS / f"{key}.npz")
         print(f"{key}: identical; kept checkpoints/{key}.npz", flush=True)
+    step_record("checkpoints", policies=list(keys),
+                numeric_environment="the paper grid's recorded one (results/paper-grid/environment.jsonl), set by --verify")
 
 
 # ----- flying -----------------------------------------------------------------------------------------
