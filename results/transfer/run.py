@@ -162,9 +162,34 @@ def fly(vehicle: str, air: str, keys: tuple[str, ...], episodes: int, runs: Path
             fly_real(vehicle, cmd, log, runs / "autopilots" / f"{key}-{vehicle}-{air}")
         kept.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(run_dir / "episodes.jsonl", kept)
+        if kept.parent == EPISODES:
+            keep_eval_records(run_dir, key, vehicle, air)
         records = [json.loads(line) for line in kept.read_text().splitlines()]
         print(json.dumps({"policy": key, "vehicle": vehicle, "air": air, "episodes": len(records),
                           "on_pad": sum(bool(r["success"]) for r in records)}), flush=True)
+
+
+def keep_eval_records(run_dir: Path, key: str, vehicle: str, air: str) -> None:
+    """The evaluation's own environment records (``col eval`` writes them in its run folder, not
+    committed) copied into this folder's environment.jsonl, tagged with what was flown."""
+    from colcommon.numeric_env import RECORDS_NAME, read_records
+
+    with (HERE / RECORDS_NAME).open("a") as out:
+        for rec in read_records(run_dir):
+            rec = {**rec, "step": "fly", "policy": key, "vehicle": vehicle, "air": air,
+                   "command": ["col", "eval", f"checkpoints/{key}.npz", "--config", f"configs/{config_path(vehicle, air).name}"]}
+            out.write(json.dumps(rec, sort_keys=True) + "\n")
+
+
+def records(vehicle: str, air: str) -> None:
+    """keep_eval_records for episodes flown before fly kept them itself (those not yet recorded)."""
+    from colcommon.numeric_env import read_records
+
+    done = {(r.get("policy"), r.get("vehicle"), r.get("air")) for r in read_records(HERE) if r.get("step") == "fly"}
+    for key in POLICIES:
+        run_dir = RUNS / f"{key}-{vehicle}-{air}-{EPISODES_EACH}"
+        if (EPISODES / f"{key}-{vehicle}-{air}.jsonl").exists() and (key, vehicle, air) not in done and run_dir.is_dir():
+            keep_eval_records(run_dir, key, vehicle, air)
 
 
 def fly_real(vehicle: str, cmd: list[str], log: Path, work: Path) -> None:
@@ -255,6 +280,9 @@ def main() -> None:
     p.add_argument("air", choices=tuple(AIRS))
     p.add_argument("--policies", help="KEY,... (default: the plan's 16)")
     p.add_argument("--episodes", type=int, default=EPISODES_EACH, help="a check with fewer goes to runs/transfer/checks/")
+    p = sub.add_parser("records", help="copy flown evaluations' environment records into environment.jsonl")
+    p.add_argument("vehicle", choices=VEHICLES)
+    p.add_argument("air", choices=tuple(AIRS))
     sub.add_parser("summarise", help="summary.json and table.md")
     args = parser.parse_args()
     if args.step == "configs":
@@ -265,6 +293,8 @@ def main() -> None:
         if args.episodes < 1:
             raise SystemExit("--episodes must be at least 1")
         fly(args.vehicle, args.air, parse_keys(args.policies), args.episodes, args.runs)
+    elif args.step == "records":
+        records(args.vehicle, args.air)
     else:
         summarise()
 
