@@ -72,6 +72,11 @@ class SessionConfig(Section):
     link_patience_s: float = Field(10.0, gt=0, description="link lost this long -> give the episode up")
     # Episode starts on a vehicle without a simulator (fly there, then hand over).
     pad_ned_m: tuple[float, float, float] = Field((0.0, 0.0, -1.5), description="where the pad is, local NED")
+    policy_pad_ned_m: tuple[float, float, float] | None = Field(
+        None, description="where the pad was, from home, in the world the policy learned in (our SITL's experiments: "
+        "[0, 0, -1.5], on the ground vehicle's roof); the position the policy and the person see is shifted so that "
+        "the pad sits there, for a policy flown where the pad stands elsewhere (a real autopilot's ground: "
+        "pad_ned_m [0, 0, 0]); none: the position from home as measured (docs/camera.md, \"The policy's frame\")")
     start_height_above_pad_m: float = Field(8.0, gt=0)
     start_xy_range_m: float = Field(3.0, ge=0)
     start_tolerance_m: float = Field(0.3, gt=0, description="at the start point within this -> hand over")

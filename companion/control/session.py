@@ -37,6 +37,7 @@ from companion.control.gaps import (
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.parts import EpisodeParts
+from companion.control.policy_frame import policy_position
 from companion.control.precland import fly_precland
 from companion.control.records import StepView, episode_record, supervised_steps
 from companion.control.sequences import leave_safe
@@ -140,6 +141,9 @@ class EpisodeRunner:
         if self.help is not None:
             notes.extend(self.help.end(steps))
         notes.extend(self.gaps.notes())
+        if self.p.cfg.policy_pad_ned_m is not None:
+            notes.append(f"position seen in the policy's frame: the pad at {list(self.p.cfg.policy_pad_ned_m)} from "
+                         f"home there, {list(self.p.cfg.pad_ned_m)} here")
         source_notes = getattr(self.p.observer.camera, "frame_source_notes", None)
         if source_notes is not None:  # the rendered camera: frames from truth or the estimate
             notes.extend(source_notes())
@@ -220,12 +224,17 @@ class EpisodeRunner:
             return verdict.outcome
         return self.p.control.end_requested() if self.p.control is not None else None
 
+    def _seen_position(self, snap: VehicleSnapshot) -> tuple[float, float, float]:
+        """The position the policy and the person see: from home, in the policy's frame (policy_frame)."""
+        cfg = self.p.cfg
+        return policy_position(self.home.relative(snap), cfg.pad_ned_m, cfg.policy_pad_ned_m)
+
     def _control_step(self, episode: int, step: int, phase: Phase, snap: VehicleSnapshot,
                       t0_ms: int) -> int | None:
         """One step that flies (judged by _stop_reason before): its policy version."""
         t_start = self._tick_start_s = time.perf_counter()
         try:
-            obs = self.p.observer.observe(snap, self.p.lockstep, self.home.relative(snap))
+            obs = self.p.observer.observe(snap, self.p.lockstep, self._seen_position(snap))
             vector = obs.to_vector()
         except ValueError as exc:  # non-finite telemetry: hold this step
             log.warning("step %d: unusable telemetry (%s); holding", step, exc)

@@ -103,6 +103,8 @@ class _Flight:
 
 def why_not_batched(cfg: CompanionConfig, config_path: Path | None) -> str | None:
     """Why this evaluation must fly through the session (None: the batched one flies it)."""
+    if cfg.session.policy_pad_ned_m is not None:
+        return "the policy's frame is moved ([companion.session] policy_pad_ned_m)"
     if cfg.landing.touchdown_assist:
         return "the touchdown assist ([companion.landing] touchdown_assist) is on"
     if cfg.ask.enabled:

@@ -238,6 +238,7 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("session", "autopilot_sim_disturbance"): False,
     ("session", "sih_mass_scale"): 1.0,
     ("session", "sih_drag_scale"): 1.0,
+    ("session", "policy_pad_ned_m"): None,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's

@@ -144,9 +144,10 @@ class Runner:
 
 
 def make_runner(link: KinematicLink, human: HumanInput, *, runner=None, fence_radius_m: float = 30.0,  # type: ignore[no-untyped-def]
-                max_steps: int = 60, lockstep: bool = True) -> tuple[EpisodeRunner, HumanDataset]:
+                max_steps: int = 60, lockstep: bool = True,
+                session_update: dict | None = None) -> tuple[EpisodeRunner, HumanDataset]:
     cfg = CompanionConfig()
-    session = cfg.session.model_copy(update={"max_steps": max_steps})
+    session = cfg.session.model_copy(update={"max_steps": max_steps, **(session_update or {})})
     dataset = HumanDataset(None)
     parts = EpisodeParts(
         link=link, observer=Observer(None, PadDetector(), (320, 240)), mapper=CommandMapper(cfg.commands), human=human,
@@ -615,3 +616,33 @@ def test_without_a_simulator_the_rendered_pad_drives_from_the_hand_over_and_the_
     landed = math.hypot(link.pos[0] - pad_n, link.pos[1] - pad_e)
     assert record.touchdown_distance_m == pytest.approx(landed, abs=0.02)
     assert record.touchdown_distance_m != pytest.approx(math.hypot(link.pos[0], link.pos[1]), abs=0.02)
+
+
+class SeeingHuman(ScriptedHuman):
+    """Demonstrates a descent and remembers the positions it was shown."""
+
+    def __init__(self) -> None:
+        super().__init__(set())
+        self.seen: list[tuple[float, float, float]] = []
+
+    def read(self, obs: Observation) -> HumanCommand:
+        self.seen.append(obs.position_ned_m)
+        return super().read(obs)
+
+
+@pytest.mark.parametrize("policy_pad", [None, (0.0, 0.0, -1.5)])
+def test_the_policys_frame_moves_what_is_seen_and_recorded_not_what_is_judged(policy_pad) -> None:  # type: ignore[no-untyped-def]
+    """A pad on the ground here, on a 1.5 m roof where the policy learned: the person and the
+    dataset see every position 1.5 m higher; the touchdown is still judged from home."""
+    link = KinematicLink((0.0, 0.0, -3.0))
+    human = SeeingHuman()
+    runner, dataset = make_runner(link, human, runner=policy_runner(),
+                                  session_update={"pad_ned_m": (0.0, 0.0, 0.0), "policy_pad_ned_m": policy_pad})
+    record = runner.run(0, Phase.DEMONSTRATION, seed=1)
+    assert record.outcome == "touchdown" and len(dataset) == record.steps > 20
+    shift = 0.0 if policy_pad is None else -1.5
+    assert human.seen[0][2] == pytest.approx(-3.0 + shift, abs=0.05)
+    assert human.seen[-1][2] == pytest.approx(shift, abs=0.1)  # on the ground: where the roof was in training
+    downs = dataset.view().obs[:, 2] * 10.0  # down_m / 10 m in the vector
+    assert downs[0] == pytest.approx(-3.0 + shift, abs=0.05)
+    assert (policy_pad is None) == (not any("policy's frame" in n for n in record.notes))
