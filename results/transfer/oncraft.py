@@ -51,7 +51,7 @@ POLICIES = tuple(f"{p}-col-20-s0" for p in ("P1", "P2", "P3", "P4"))
 ARMS = ("int", "demo")
 SITTINGS = (2, 2, 4)  # episodes per freshly started PX4 SIH; checkpoints after 2, 4 and 8
 FIRST_CONTINUED = 20  # the trial flew episodes 0-19
-VEHICLE, AIR = "px4", "still"
+VEHICLE, AIR = "px4-aligned", "still"  # PX4 SIH, the policy's frame moved (the plan's Amendment 1)
 UPDATES_PER_STEP = 40  # the pinned grid's budgeted learner (results/paper-grid/config.toml)
 
 
@@ -67,7 +67,7 @@ def config_text(rep: int) -> str:
     """The transfer table's PX4 config (still air) with the grid trial's learner and seeds, so
     the continued episodes learn as the trial did and start from its training seeds 20, 21, ..."""
     seed = 1000 * rep  # companion.experiment.grid.START_SEEDS_PER_REPLICATE
-    real = transfer.REAL_CONFIG.format(air=AIR, level=0.0, disturb="false")
+    real = transfer.REAL_CONFIG.format(air=AIR, level=0.0, disturb="false", frame=transfer.frame_line(True))
     real = real.replace("[companion.session]\n", f"[companion.session]\nseed = {seed}  # the trial's: episode i starts from seed + i\n", 1)
     return (f"# CoL on the target vehicle (docs/camera.md): PX4 SIH, still air, replicate {rep}'s learner.\n"
             + real.split("\n", 1)[1]

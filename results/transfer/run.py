@@ -39,13 +39,16 @@ RUNS = ROOT / "runs" / "transfer"
 PAPER_GRID = ROOT / "results" / "paper-grid"
 POLICIES = tuple(f"{p}-{c}-20-s{r}" for c in ("demo", "col") for p in ("P1", "P2", "P3", "P4") for r in (0, 1))
 VEHICLES = ("ours", "ardupilot", "px4")
+ALIGNED = ("ardupilot-aligned", "px4-aligned")  # Amendment 1: the real ones with the policy's frame moved
+COLUMNS = VEHICLES + ALIGNED
+POLICY_PAD_NED_M = (0.0, 0.0, -1.5)  # where the pad was in the policies' world: our SITL's roof
 AIRS = {"still": 0.0, "disturbed": 0.2}
 SPEEDUP = {"ardupilot": 5.0, "px4": 4.0}
 EPISODES_EACH, FIRST_SEED = 20, 100000
 
 REAL_CONFIG = """# The transfer table (docs/camera.md, "The transfer table"): a real autopilot's SITL, {air} air.
 [companion.session]
-clock = "vehicle"  # the autopilots run faster than real time: steps by the vehicle's time_boot_ms
+{frame}clock = "vehicle"  # the autopilots run faster than real time: steps by the vehicle's time_boot_ms
 pad_ned_m = [0.0, 0.0, 0.0]  # the pad on the autopilot's own ground
 start_height_above_pad_m = 8.0  # the start box of our SITL's resets
 start_xy_range_m = 3.0
@@ -62,8 +65,22 @@ level = {level}
 """
 
 
+def autopilot_of(vehicle: str) -> str:
+    return vehicle.removesuffix("-aligned")
+
+
 def config_path(vehicle: str, air: str) -> Path:
-    return CONFIGS / f"{'ours' if vehicle == 'ours' else 'real'}-{air}.toml"
+    if vehicle == "ours":
+        return CONFIGS / f"ours-{air}.toml"
+    return CONFIGS / f"real-{air}{'-aligned' if vehicle in ALIGNED else ''}.toml"
+
+
+def frame_line(aligned: bool) -> str:
+    """Amendment 1's setting: the position the policy sees moved so the pad sits on the roof it learned on."""
+    if not aligned:
+        return ""
+    return (f"policy_pad_ned_m = {list(POLICY_PAD_NED_M)}  # the pad where the policies learned it "
+            "(our SITL's roof): docs/camera.md, \"The policy's frame\"\n")
 
 
 def config_texts() -> dict[Path, str]:
@@ -75,7 +92,9 @@ def config_texts() -> dict[Path, str]:
     for air, level in AIRS.items():
         out[config_path("ours", air)] = (f"# The transfer table (docs/camera.md): our SITL, {air} air; the pinned grid's "
                                          "config otherwise.\n" + grid.replace("\nlevel = 0.2\n", f"\nlevel = {level}\n"))
-        out[config_path("real", air)] = REAL_CONFIG.format(air=air, level=level, disturb=str(level > 0).lower())
+        for vehicle in ("px4", "px4-aligned"):
+            out[config_path(vehicle, air)] = REAL_CONFIG.format(air=air, level=level, disturb=str(level > 0).lower(),
+                                                                frame=frame_line(vehicle in ALIGNED))
     return out
 
 
@@ -200,8 +219,9 @@ def fly_real(vehicle: str, cmd: list[str], log: Path, work: Path) -> None:
     if root is None:
         raise SystemExit(why)
     shutil.rmtree(work, ignore_errors=True)
-    start = start_px4 if vehicle == "px4" else start_ardupilot
-    with start(root, work, speedup=SPEEDUP[vehicle]) as ap:
+    autopilot = autopilot_of(vehicle)
+    start = start_px4 if autopilot == "px4" else start_ardupilot
+    with start(root, work, speedup=SPEEDUP[autopilot]) as ap:
         run_logged(cmd + ["--connect", ap.connection], log, ROOT)
 
 
@@ -219,9 +239,9 @@ def summary() -> dict[str, Any]:
     transfer gap (vehicle minus ours, paired by policy) with a 95 % BCa interval over policies."""
     from companion.statistics import bootstrap_mean_ci
 
-    shares = {f"{k}/{v}/{a}": on_pad_pct(EPISODES / f"{k}-{v}-{a}.jsonl") for k in POLICIES for v in VEHICLES for a in AIRS}
+    shares = {f"{k}/{v}/{a}": on_pad_pct(EPISODES / f"{k}-{v}-{a}.jsonl") for k in POLICIES for v in COLUMNS for a in AIRS}
     gaps: dict[str, Any] = {}
-    for vehicle in VEHICLES[1:]:
+    for vehicle in COLUMNS[1:]:
         for air in AIRS:
             for cond in ("demo", "col", "all"):
                 keys = [k for k in POLICIES if cond == "all" or f"-{cond}-" in k]
@@ -237,10 +257,10 @@ def summary() -> dict[str, Any]:
 def table(s: dict[str, Any]) -> str:
     lines = ["# The transfer table", "", "Made by `python results/transfer/run.py summarise` from `episodes/`; the plan is "
              "docs/camera.md, \"The transfer table (preregistration)\". On the pad by truth, % of 20 episodes.", "",
-             "| policy | " + " | ".join(f"{v}, {a}" for a in AIRS for v in VEHICLES) + " |",
-             "| --- |" + " ---: |" * (len(AIRS) * len(VEHICLES))]
+             "| policy | " + " | ".join(f"{v}, {a}" for a in AIRS for v in COLUMNS) + " |",
+             "| --- |" + " ---: |" * (len(AIRS) * len(COLUMNS))]
     for key in POLICIES:
-        cells = [s["shares_pct"][f"{key}/{v}/{a}"] for a in AIRS for v in VEHICLES]
+        cells = [s["shares_pct"][f"{key}/{v}/{a}"] for a in AIRS for v in COLUMNS]
         lines.append(f"| {key} | " + " | ".join("-" if c is None else f"{c:.0f}" for c in cells) + " |")
     lines += ["", "| gap: vehicle - ours, paired by policy | policies | mean, points | 95 % BCa |", "| --- | ---: | ---: | --- |"]
     for name, g in s["gaps"].items():
@@ -276,12 +296,12 @@ def main() -> None:
     p = sub.add_parser("checkpoints", help="retrain the policies by --verify and keep their checkpoints")
     p.add_argument("--policies", help="KEY,... (default: the plan's 16)")
     p = sub.add_parser("fly", help="the policies on one vehicle in one air")
-    p.add_argument("vehicle", choices=VEHICLES)
+    p.add_argument("vehicle", choices=COLUMNS)
     p.add_argument("air", choices=tuple(AIRS))
     p.add_argument("--policies", help="KEY,... (default: the plan's 16)")
     p.add_argument("--episodes", type=int, default=EPISODES_EACH, help="a check with fewer goes to runs/transfer/checks/")
     p = sub.add_parser("records", help="copy flown evaluations' environment records into environment.jsonl")
-    p.add_argument("vehicle", choices=VEHICLES)
+    p.add_argument("vehicle", choices=COLUMNS)
     p.add_argument("air", choices=tuple(AIRS))
     sub.add_parser("summarise", help="summary.json and table.md")
     args = parser.parse_args()

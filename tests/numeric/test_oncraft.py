@@ -40,11 +40,12 @@ def test_the_continued_episodes_learn_as_the_grid_trial_did_on_the_transfer_tabl
     grid = load_experiment(TRANSFER.parents[0] / "paper-grid" / "config.toml")
     trial = trial_config(grid, TrainingRun("P1", "col", 0, 20, (20,)))
     mine = load_companion_config(oncraft.config_path(0))
-    real = load_companion_config(oncraft.transfer.config_path("px4", "still"))
+    real = load_companion_config(oncraft.transfer.config_path("px4-aligned", "still"))
     assert mine.learner == trial.learner  # budgeted, 40 updates a step, the replicate's seed
     assert mine.session.seed == trial.session.seed == 0  # episode 20 starts from the trial's seed 20
     assert mine.session.model_copy(update={"seed": real.session.seed}) == real.session
     assert mine.perception == real.perception and mine.perception.camera == "render"
+    assert mine.session.policy_pad_ned_m == (0.0, 0.0, -1.5)  # the plan's Amendment 1: the policy's frame
     assert load_sitl_config(oncraft.config_path(0)) == load_sitl_config(oncraft.transfer.config_path("px4", "still"))
 
 
@@ -67,7 +68,7 @@ def test_the_contrasts_are_paired_by_policy_and_missing_cells_left_out(tmp_path:
 
     p1, p2, p3 = oncraft.POLICIES[:3]
     for i, key in enumerate((p1, p2, p3)):
-        write(oncraft.transfer.EPISODES / f"{key}-px4-still.jsonl", 5 + i)
+        write(oncraft.transfer.EPISODES / f"{key}-{oncraft.VEHICLE}-still.jsonl", 5 + i)
         write(oncraft.eval_path(key, "int", 4), 15 + 2 * i)  # 50, 55 and 60 points above before
         if key != p3:
             write(oncraft.eval_path(key, "demo", 4), 10 + 2 * i)

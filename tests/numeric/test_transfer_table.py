@@ -66,6 +66,16 @@ def test_the_real_autopilots_fly_the_same_start_box_with_the_truth_camera(air: s
     assert cfg.session.autopilot_sim_disturbance is (air == "disturbed")
 
 
+@pytest.mark.parametrize("air", ["still", "disturbed"])
+def test_the_aligned_columns_differ_from_the_measured_only_in_the_policys_frame(air: str) -> None:
+    measured = load_companion_config(run.config_path("px4", air))
+    aligned = load_companion_config(run.config_path("px4-aligned", air))
+    assert measured.session.policy_pad_ned_m is None and aligned.session.policy_pad_ned_m == run.POLICY_PAD_NED_M
+    assert aligned.model_copy(update={"session": measured.session}) == measured
+    assert load_sitl_config(run.config_path("px4-aligned", air)) == load_sitl_config(run.config_path("px4", air))
+    assert run.config_path("ardupilot-aligned", air) == run.config_path("px4-aligned", air)
+
+
 def test_the_gap_is_paired_by_policy_and_missing_cells_are_left_out(tmp_path: Path,
                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(run, "EPISODES", tmp_path)
