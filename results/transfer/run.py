@@ -251,7 +251,18 @@ def summary() -> dict[str, Any]:
                 gaps[f"{vehicle}/{air}/{cond}"] = {
                     "policies": len(diffs), "mean_gap_points": round(statistics.fmean(diffs), 2) if diffs else None,
                     "interval95": [round(x, 2) for x in ci] if ci else None}
-    return {"shares_pct": shares, "gaps": gaps, "plan": "docs/camera.md, The transfer table (preregistration)"}
+    col_minus_demo: dict[str, Any] = {}
+    for vehicle in COLUMNS:
+        for air in AIRS:
+            diffs = [shares[f"{k}/{vehicle}/{air}"] - shares[f"{k.replace('-col-', '-demo-')}/{vehicle}/{air}"]
+                     for k in POLICIES if "-col-" in k and shares[f"{k}/{vehicle}/{air}"] is not None
+                     and shares[f"{k.replace('-col-', '-demo-')}/{vehicle}/{air}"] is not None]
+            ci = bootstrap_mean_ci(diffs) if len(diffs) >= 2 else None
+            col_minus_demo[f"{vehicle}/{air}"] = {
+                "pairs": len(diffs), "mean_points": round(statistics.fmean(diffs), 2) if diffs else None,
+                "interval95": [round(x, 2) for x in ci] if ci else None}
+    return {"shares_pct": shares, "gaps": gaps, "col_minus_demo": col_minus_demo,
+            "plan": "docs/camera.md, The transfer table (preregistration)"}
 
 
 def table(s: dict[str, Any]) -> str:
@@ -266,6 +277,12 @@ def table(s: dict[str, Any]) -> str:
     for name, g in s["gaps"].items():
         ci = g["interval95"]
         lines.append(f"| {name} | {g['policies']} | {'-' if g['mean_gap_points'] is None else g['mean_gap_points']} | "
+                     f"{'-' if ci is None else f'[{ci[0]}, {ci[1]}]'} |")
+    lines += ["", "| CoL@20 - Demo@20, paired by participant and replicate | pairs | mean, points | 95 % BCa |",
+              "| --- | ---: | ---: | --- |"]
+    for name, g in s["col_minus_demo"].items():
+        ci = g["interval95"]
+        lines.append(f"| {name} | {g['pairs']} | {'-' if g['mean_points'] is None else g['mean_points']} | "
                      f"{'-' if ci is None else f'[{ci[0]}, {ci[1]}]'} |")
     return "\n".join(lines) + "\n"
 

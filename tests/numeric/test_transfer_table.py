@@ -94,3 +94,7 @@ def test_the_gap_is_paired_by_policy_and_missing_cells_are_left_out(tmp_path: Pa
     assert gap["policies"] == 3 and gap["mean_gap_points"] == -10.0
     assert s["gaps"]["px4/still/col"]["policies"] == 0
     assert "| P1-col-20-s0 | 100 | 90 |" in run.table(s)
+    assert s["col_minus_demo"]["ours/still"]["pairs"] == 0  # no Demo cell flown: nothing to pair
+    flown("P1-demo-20-s0", "ours", 10)
+    pair = run.summary()["col_minus_demo"]["ours/still"]
+    assert pair["pairs"] == 1 and pair["mean_points"] == 50.0  # P1-col-20-s0 100 % - P1-demo-20-s0 50 %
