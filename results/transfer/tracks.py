@@ -4,7 +4,8 @@
 
 One JSON line per episode, then one per run folder (``"run": ...``). An episode is a stretch of
 the companion's body-frame velocity setpoints (SET_POSITION_TARGET_LOCAL_NED, BODY_NED) with no
-gap over 2 s of the vehicle's time. Positions are the vehicle's estimate (LOCAL_POSITION_NED),
+gap over 2 s of the vehicle's time (a real autopilot's episodes are apart by the flight to the
+next start; our SITL's resets leave no such gap, so on it only the response below means anything). Positions are the vehicle's estimate (LOCAL_POSITION_NED),
 the pad at north = east = 0, heights above where the episode ended (its touchdown): on PX4 SIH the
 estimate is some 0.2-0.6 m off the truth (docs/camera.md), so these are its picture, not the truth.
 
