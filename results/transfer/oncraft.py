@@ -9,7 +9,7 @@ Steps, each resumable (what is kept is not run again):
     python results/transfer/oncraft.py fly P1-col-20-s0 int  # 2 + 2 + 4 episodes on fresh PX4 SIHs, each checkpoint evaluated
     python results/transfer/oncraft.py summarise             # oncraft/summary.json and oncraft/table.md
 
-Kept in oncraft/: base.jsonl (each rerun's verdict and its final checkpoint's SHA-256),
+Kept in oncraft/: base.jsonl (each rerun's verdict and its final weights' SHA-256),
 train/KEY-ARM.jsonl (the continued episodes' records), checkpoints/KEY-ARM-N.npz,
 episodes/KEY-ARM-N-px4-still.jsonl (the evaluations). Run folders and logs go to
 runs/transfer/oncraft/ (not committed).
@@ -86,8 +86,16 @@ def write_configs() -> None:
 
 # ----- the trial's run folder ----------------------------------------------------------------------
 
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+def weights_sha256(path: Path) -> str:
+    """The checkpoint's arrays (weights, biases, normalisation), not its metadata: that holds the
+    time the file was written, which a rerun cannot repeat."""
+    import numpy as np
+
+    with np.load(path, allow_pickle=False) as npz:
+        digest = hashlib.sha256()
+        for name in sorted(n for n in npz.files if n != "metadata"):
+            digest.update(name.encode() + npz[name].tobytes())
+    return digest.hexdigest()
 
 
 def base_dir(key: str) -> Path:
@@ -98,8 +106,9 @@ def base(key: str) -> bool:
     """Rerun the trial with ``--verify --keep``; True when its line came out byte for byte and its
     final checkpoint is the transfer table's. The verdict goes to base.jsonl."""
     folder = base_dir(key)
-    if (folder / "checkpoints" / f"episode_{FIRST_CONTINUED - 1:03d}.npz").exists():
-        return True
+    kept = folder / "checkpoints" / f"episode_{FIRST_CONTINUED - 1:03d}.npz"
+    if kept.exists() and weights_sha256(kept) == weights_sha256(transfer.CHECKPOINTS / f"{key}.npz"):
+        return True  # rerun before, and its final policy is the transfer table's
     keep = RUNS / "base" / key
     shutil.rmtree(keep, ignore_errors=True)
     cmd = [transfer.col(), "experiment", "--verify", "results/paper-grid", "--trial", key, "--keep", str(keep)]
@@ -108,12 +117,12 @@ def base(key: str) -> bool:
     (RUNS / f"base-{key}.log").write_text(done.stdout + done.stderr)
     verdict = json.loads(done.stdout.strip().splitlines()[-1]) if done.stdout.strip() else {}
     final = folder / "checkpoints" / f"episode_{FIRST_CONTINUED - 1:03d}.npz"
-    same = final.exists() and sha256(final) == sha256(transfer.CHECKPOINTS / f"{key}.npz")
+    same = final.exists() and weights_sha256(final) == weights_sha256(transfer.CHECKPOINTS / f"{key}.npz")
     ok = done.returncode == 0 and verdict.get("identical") == 1 and same
     OUT.mkdir(parents=True, exist_ok=True)
     with (OUT / "base.jsonl").open("a") as out:
         out.write(json.dumps({"trial": key, "identical": verdict.get("identical") == 1, "exit_code": done.returncode,
-                              "final_checkpoint_sha256": sha256(final) if final.exists() else None,
+                              "final_weights_sha256": weights_sha256(final) if final.exists() else None,
                               "same_as_transfer_checkpoint": same,
                               "command": f"col experiment --verify results/paper-grid --trial {key} --keep runs/transfer/oncraft/base/{key}"})
                   + "\n")
