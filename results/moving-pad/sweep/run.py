@@ -655,15 +655,16 @@ def environment_records(runs: Path) -> None:
     """``environment.jsonl`` here: the configs step's lines, then every kept run's records
     (tagged with its arm; a grid's once), machine paths stripped."""
     path = HERE / "environment.jsonl"
-    old = path.read_text().splitlines() if path.exists() else []
-    lines = [line for line in old if line.strip() and json.loads(line).get("step") == "configs"]
+    old = [line for line in (path.read_text().splitlines() if path.exists() else []) if line.strip()]
+    lines = [line for line in old if json.loads(line).get("step") == "configs"]
     seen = set()
     for kept in sorted(EPISODES.glob("*.jsonl")):
         found = run_folder_of(kept, runs)
         if found[1] in seen:
             continue
         seen.add(found[1])
-        lines += tagged_records(*found)
+        # a run folder gone (another machine, a cleaned runs/): its arm's lines already here stay
+        lines += tagged_records(*found) or [line for line in old if json.loads(line).get("arm") == found[1]]
     path.write_text("\n".join(lines) + "\n")
     print(f"{len(lines)} records in {_rel(path)}")
 
