@@ -285,11 +285,7 @@ def table(s: dict[str, Any]) -> str:
     for key in POLICIES:
         cols = [s["cells"][f"{key}/before"]] + [s["cells"][f"{key}/{arm}/{n}"] for arm in ARMS for n in (2, 4, 8)]
         lines.append(f"| {key} | " + " | ".join(show(c) for c in cols) + " |")
-    lines += ["", "| contrast, paired by policy | policies | mean, points | 95 % BCa |", "| --- | ---: | ---: | --- |"]
-    for name, c in s["contrasts"].items():
-        ci = c["interval95"]
-        lines.append(f"| {name} | {c['policies']} | {'-' if c['mean_points'] is None else c['mean_points']} | "
-                     f"{'-' if ci is None else f'[{ci[0]}, {ci[1]}]'} |")
+    lines += transfer.interval_rows("contrast, paired by policy", "policies", s["contrasts"], "policies", "mean_points")
     return "\n".join(lines) + "\n"
 
 

@@ -265,6 +265,16 @@ def summary() -> dict[str, Any]:
             "plan": "docs/camera.md, The transfer table (preregistration)"}
 
 
+def interval_rows(title: str, count: str, rows: dict[str, dict[str, Any]], count_key: str, mean_key: str) -> list[str]:
+    """A markdown table of paired means with their 95 % intervals, one row per contrast."""
+    out = ["", f"| {title} | {count} | mean, points | 95 % BCa |", "| --- | ---: | ---: | --- |"]
+    for name, row in rows.items():
+        mean, ci = row[mean_key], row["interval95"]
+        out.append(f"| {name} | {row[count_key]} | {'-' if mean is None else mean} | "
+                   f"{'-' if ci is None else f'[{ci[0]}, {ci[1]}]'} |")
+    return out
+
+
 def table(s: dict[str, Any]) -> str:
     lines = ["# The transfer table", "", "Made by `python results/transfer/run.py summarise` from `episodes/`; the plan is "
              "docs/camera.md, \"The transfer table (preregistration)\". On the pad by truth, % of 20 episodes.", "",
@@ -273,17 +283,9 @@ def table(s: dict[str, Any]) -> str:
     for key in POLICIES:
         cells = [s["shares_pct"][f"{key}/{v}/{a}"] for a in AIRS for v in COLUMNS]
         lines.append(f"| {key} | " + " | ".join("-" if c is None else f"{c:.0f}" for c in cells) + " |")
-    lines += ["", "| gap: vehicle - ours, paired by policy | policies | mean, points | 95 % BCa |", "| --- | ---: | ---: | --- |"]
-    for name, g in s["gaps"].items():
-        ci = g["interval95"]
-        lines.append(f"| {name} | {g['policies']} | {'-' if g['mean_gap_points'] is None else g['mean_gap_points']} | "
-                     f"{'-' if ci is None else f'[{ci[0]}, {ci[1]}]'} |")
-    lines += ["", "| CoL@20 - Demo@20, paired by participant and replicate | pairs | mean, points | 95 % BCa |",
-              "| --- | ---: | ---: | --- |"]
-    for name, g in s["col_minus_demo"].items():
-        ci = g["interval95"]
-        lines.append(f"| {name} | {g['pairs']} | {'-' if g['mean_points'] is None else g['mean_points']} | "
-                     f"{'-' if ci is None else f'[{ci[0]}, {ci[1]}]'} |")
+    lines += interval_rows("gap: vehicle - ours, paired by policy", "policies", s["gaps"], "policies", "mean_gap_points")
+    lines += interval_rows("CoL@20 - Demo@20, paired by participant and replicate", "pairs", s["col_minus_demo"],
+                           "pairs", "mean_points")
     return "\n".join(lines) + "\n"
 
 
