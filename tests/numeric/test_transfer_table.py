@@ -98,3 +98,8 @@ def test_the_gap_is_paired_by_policy_and_missing_cells_are_left_out(tmp_path: Pa
     flown("P1-demo-20-s0", "ours", 10)
     pair = run.summary()["col_minus_demo"]["ours/still"]
     assert pair["pairs"] == 1 and pair["mean_points"] == 50.0  # P1-col-20-s0 100 % - P1-demo-20-s0 50 %
+    flown("P1-col-20-s0", "px4", 4)
+    flown("P1-col-20-s0", "px4-aligned", 9)
+    moved = run.summary()["frame_moved"]
+    assert moved["px4-aligned/still"] == {"pairs": 1, "mean_points": 25.0, "interval95": None}  # 45 % - 20 %
+    assert moved["ardupilot-aligned/still"]["pairs"] == 0
