@@ -192,6 +192,8 @@ class PrecisionLander:
         frame = self.frame(snap, lockstep)
         if frame is None:
             return None
+        if not lockstep:  # waiting for the frame took time: place it from the pose it was drawn with, not the older one
+            snap = fresher(snap, self.link.state())
         self.counts.frames += 1
         target = self.target(frame, snap, dialect)
         if target is not None:
@@ -199,6 +201,12 @@ class PrecisionLander:
             self.counts.sent += 1
             self.sent.append(target)
         return target
+
+
+def fresher(snap: VehicleSnapshot, latest: VehicleSnapshot | None) -> VehicleSnapshot:
+    """The newer of two snapshots (a real-time frame comes after the step's snapshot: its target is
+    placed from the vehicle's pose when it arrived, which the frame was drawn from or near)."""
+    return latest if latest is not None and latest.time_boot_ms >= snap.time_boot_ms else snap
 
 
 def precland_time_is_up(step: int, elapsed_ms: int, max_steps: int, control_rate_hz: float, lockstep: bool) -> bool:

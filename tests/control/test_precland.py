@@ -61,6 +61,10 @@ class RecordingLink:
         self.calls: list[tuple[str, Any]] = []
         self.echo = echo
 
+    def state(self) -> None:
+        """No telemetry of its own: a lander keeps the step's snapshot."""
+        return None
+
     def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
         self.calls.append(("param", (name, value)))
         return value if self.echo is None else self.echo.get(name)
@@ -426,3 +430,11 @@ def test_in_real_time_a_precland_step_takes_the_newest_telemetry_when_a_camera_p
     fly_precland(PrecisionLander(RecordingLink(), None, detector()), unpaced, PX4, snapshot(), max_steps=10,  # type: ignore[arg-type]
                  recover=lambda: "link_lost", stop=lambda step, snap: "touchdown" if step == 2 else None)
     assert unpaced.calls == ["next", "next"]  # without a camera the control rate paces it
+
+
+def test_a_real_time_frame_is_placed_from_the_newer_snapshot() -> None:
+    from companion.control.precland import fresher
+
+    old = dataclasses.replace(snapshot(position=(0.0, 0.0, -4.0)), time_boot_ms=1_000)
+    new = dataclasses.replace(snapshot(position=(0.0, 0.0, -3.7)), time_boot_ms=1_400)  # descended meanwhile
+    assert fresher(old, new) is new and fresher(new, old) is new and fresher(old, None) is old
