@@ -246,6 +246,16 @@ class PilotConfig(Section):
         0.5, ge=0, le=2, description="with lead_moving_pad, the stick held per m/s of the pad's speed: the pilot's "
                                      "feel for the vehicle, 1 / companion.commands.v_xy_max_m_s"
     )
+    judge_drift_by_picture: bool = Field(
+        False, description="judge the drift the ground-speed reading does not show from the pad sliding across the "
+                           "picture (companion/inputs/picture_drift.py): damp the speed relative to the pad and lean "
+                           "against the drift with lead_stick_per_m_s (off: the reading is believed; real autopilots: "
+                           "results/real-autopilots/RENDER.md)"
+    )
+    drift_time_constant_s: float = Field(
+        0.5, gt=0, le=10, description="with judge_drift_by_picture, the drift's smoothing at 1 m above the pad "
+                                      "(times the height above 1 m)"
+    )
     search_climb_stick: float = Field(0.3, ge=0, le=1, description="climb while the pad is lost")
     lost_hold_s: float = Field(
         0.5, ge=0, description="pad lost shorter than this -> keep the last command (a blink)"
@@ -302,6 +312,9 @@ class PilotConfig(Section):
             raise ValueError("release_off_centre_m must not exceed takeover_off_centre_m")
         if self.release_edge_fraction > self.takeover_edge_fraction:
             raise ValueError("release_edge_fraction must not exceed takeover_edge_fraction")
+        if self.judge_drift_by_picture and self.lead_moving_pad:
+            raise ValueError("judge_drift_by_picture and lead_moving_pad both judge the motion relative to the pad; "
+                             "turn one of them off")
         return self
 
 

@@ -234,6 +234,8 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("learner", "weight_average_decay"): 0.999,
     ("pilot", "set_down_by_picture"): False,
     ("pilot", "lead_moving_pad"): False,
+    ("pilot", "judge_drift_by_picture"): False,
+    ("pilot", "drift_time_constant_s"): 0.5,
     ("pilot", "lead_stick_per_m_s"): 0.5,
     ("session", "autopilot_sim_disturbance"): False,
     ("session", "sih_mass_scale"): 1.0,

@@ -19,6 +19,7 @@ from companion.config import PilotConfig
 from companion.inputs.base import HumanCommand, HumanInput
 from companion.inputs.pad_motion import PadMotion, heading_frame, pad_ground_position
 from companion.inputs.pad_view import PadEstimate, estimate_pad, heading_velocity
+from companion.inputs.picture_drift import PictureDrift
 from companion.msg.command import JoystickCommand
 
 if TYPE_CHECKING:
@@ -157,19 +158,26 @@ class ScriptedExpert(HumanInput):
     nothing), and whether it has committed to touchdown (then it sets down where it last saw
     the pad whole, ignoring partial glimpses). With ``lead_moving_pad`` (:class:`PadLead`) also
     the pad's own motion: speeds are judged relative to the pad, the pad's speed is held as a
-    driver holds a lane's, and the set-down goes where the pad has driven to.
+    driver holds a lane's, and the set-down goes where the pad has driven to. With
+    ``judge_drift_by_picture`` (:class:`PictureDrift`) the drift the ground-speed reading does not
+    show, seen as the pad sliding across the picture: the speed damped is the motion relative to
+    the pad, and the pilot leans against the drift (``lead_stick_per_m_s`` per m/s).
     """
 
     def __init__(self, cfg: PilotConfig) -> None:
         self.cfg = cfg
         self._commit = TouchdownCommit(cfg, by_picture=cfg.set_down_by_picture)
         self._lead = PadLead(cfg.lead_stick_per_m_s) if cfg.lead_moving_pad else None
+        self._drift = PictureDrift(cfg.drift_time_constant_s) if cfg.judge_drift_by_picture else None
         self.reset()
 
     def reset(self) -> None:
         self._commit.reset()
         if self._lead is not None:
             self._lead.reset()
+        if self._drift is not None:
+            self._drift.reset()
+        self._drift_fr = np.zeros(2)  # forward, right; m/s (judge_drift_by_picture)
         self._last_seen_ms: int | None = None
         self._last_command = JoystickCommand.neutral()
         self._trim = np.zeros(2)  # forward, right; stick units
@@ -187,6 +195,10 @@ class ScriptedExpert(HumanInput):
         if self._lead is not None:
             self._lead.see(view, obs, self._commit.committed)
             lead = self._lead.velocity_fr(obs)
+        if self._drift is not None:
+            believed = view if view is not None and (not view.partial or self._commit.committed) else None
+            self._drift.see(believed, now_ms, yaw_rad, (obs.velocity_ned_m_s[0], obs.velocity_ned_m_s[1]))
+            self._drift_fr = self._drift.drift_fr(yaw_rad)
         if view is None and self._commit.committed:
             return self._set_down(obs, vel, lead)
         if view is None:
@@ -194,12 +206,14 @@ class ScriptedExpert(HumanInput):
         self._update_trim(view, now_ms)
         self._last_seen_ms = now_ms
         pitch = self._steer(view.forward_m, vel[0], self._trim[0], lead[0])
-        roll = self._steer(view.right_m, vel[1], self._trim[1], lead[1])
+        roll = self._steer(view.right_m, vel[1], self._trim[1], lead[1], axis=1)
         descent = self._descent(view)
         if view.partial and self._commit.committed:  # a partial pad's radius says little of the height
             # set down by the picture (by_picture): steadily, as the blind set-down descends; without it
             # (a partial pad seen as the commit is made) as before, so committed results rerun
-            descent = self.cfg.descent_stick_slow if self._commit.by_picture else min(descent, self.cfg.descent_stick_slow)
+            # (judging the drift: slower while off-centre, as in the air, so the pad's centre stays in the picture)
+            steady = self._commit.by_picture and self._drift is None
+            descent = self.cfg.descent_stick_slow if steady else min(descent, self.cfg.descent_stick_slow)
         self._last_command = JoystickCommand(roll, pitch, 0.0, -descent)
         return self._last_command
 
@@ -215,10 +229,15 @@ class ScriptedExpert(HumanInput):
         limit = self.cfg.xy_trim_max
         self._trim = np.clip(self._trim + self.cfg.xy_trim_per_m_s * offset * dt_s, -limit, limit)
 
-    def _steer(self, offset_m: float, speed_m_s: float, trim: float, lead_m_s: float = 0.0) -> float:
-        """Stick on one axis. Leading a pad that drives at ``lead_m_s``: damp the speed relative
-        to it and hold its speed's stick, steering within ``xy_stick_max`` of that."""
+    def _steer(self, offset_m: float, speed_m_s: float, trim: float, lead_m_s: float = 0.0, axis: int = 0) -> float:
+        """Stick on one ``axis`` (0 forward, 1 right). Leading a pad that drives at ``lead_m_s``:
+        damp the speed relative to it and hold its speed's stick, steering within
+        ``xy_stick_max`` of that; judging the drift by the picture, the same with the drift."""
         c = self.cfg
+        if self._drift is not None:  # speed relative to the pad; lean against the drift
+            drift = self._drift_fr[axis]
+            demand = c.xy_gain_per_m * offset_m - c.xy_damping_per_m_s * (speed_m_s + drift) + trim
+            return float(np.clip(-c.lead_stick_per_m_s * drift + _stick(demand, c.xy_stick_max), -1.0, 1.0))
         if self._lead is None:
             demand = c.xy_gain_per_m * offset_m - c.xy_damping_per_m_s * speed_m_s + trim
             return _stick(demand, c.xy_stick_max)
@@ -242,7 +261,7 @@ class ScriptedExpert(HumanInput):
         if seen is not None and now_ms - seen < self.cfg.lost_hold_s * 1000.0:
             return self._last_command
         pitch = self._steer(0.0, vel[0], self._trim[0], lead[0])
-        roll = self._steer(0.0, vel[1], self._trim[1], lead[1])
+        roll = self._steer(0.0, vel[1], self._trim[1], lead[1], axis=1)
         return JoystickCommand(roll, pitch, 0.0, self.cfg.search_climb_stick)
 
     def _set_down(self, obs: Observation, vel: np.ndarray, lead: np.ndarray) -> JoystickCommand:
@@ -251,7 +270,7 @@ class ScriptedExpert(HumanInput):
         driven = None if self._lead is None else self._lead.driven_since(self._commit.seen_ms, obs)
         forward_m, right_m = self._commit.remembered_offset(obs, driven)
         pitch = self._steer(forward_m, vel[0], self._trim[0], lead[0])
-        roll = self._steer(right_m, vel[1], self._trim[1], lead[1])
+        roll = self._steer(right_m, vel[1], self._trim[1], lead[1], axis=1)
         return JoystickCommand(roll, pitch, 0.0, -self.cfg.descent_stick_slow)
 
 

@@ -90,6 +90,9 @@ def main() -> None:
     parser.add_argument("--set-down-by-picture", action="store_true",
                         help="[companion.pilot] set_down_by_picture: once committed, the expert still steers by a "
                              "partial pad whose centre is in the picture (RENDER.md, 2026-12-05)")
+    parser.add_argument("--judge-drift-by-picture", action="store_true",
+                        help="[companion.pilot] judge_drift_by_picture: the expert judges the drift its ground-speed "
+                             "reading does not show from the pad sliding across the picture (RENDER.md, 2026-12-06)")
     parser.add_argument("--disturbance", type=float, default=None, metavar="LEVEL",
                         help="[sitl.disturbance] level, set in each autopilot's own SITL per episode "
                              "([companion.session] autopilot_sim_disturbance: ArduCopter's wind and turbulence, the "
@@ -114,8 +117,10 @@ def main() -> None:
         text += f"\n[sitl.disturbance]\nlevel = {args.disturbance:g}\n"
     if args.sih_mass_scale != 1.0:
         text = text.replace("[companion.session]\n", f"[companion.session]\nsih_mass_scale = {args.sih_mass_scale:g}\n", 1)
-    if args.set_down_by_picture:
-        text += "\n[companion.pilot]\nset_down_by_picture = true\n"
+    pilot = [line for flag, line in ((args.set_down_by_picture, "set_down_by_picture = true"),
+                                     (args.judge_drift_by_picture, "judge_drift_by_picture = true")) if flag]
+    if pilot:
+        text += "\n[companion.pilot]\n" + "\n".join(pilot) + "\n"
     config.write_text(text)
     camera = write_still_pad_video(work / "pad.mp4", height_above_pad_m=1.0, seconds=1200.0) if args.camera == "still" else None
     kinds = tuple(k for k in args.autopilots.split(",") if k)
