@@ -312,6 +312,9 @@ class PilotConfig(Section):
             raise ValueError("release_off_centre_m must not exceed takeover_off_centre_m")
         if self.release_edge_fraction > self.takeover_edge_fraction:
             raise ValueError("release_edge_fraction must not exceed takeover_edge_fraction")
+        if self.judge_drift_by_picture and not self.set_down_by_picture:
+            raise ValueError("judge_drift_by_picture needs set_down_by_picture: the drift is judged from the pad in "
+                             "the picture, also while setting down")
         if self.judge_drift_by_picture and self.lead_moving_pad:
             raise ValueError("judge_drift_by_picture and lead_moving_pad both judge the motion relative to the pad; "
                              "turn one of them off")

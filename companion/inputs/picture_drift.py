@@ -31,6 +31,10 @@ MAX_GAP_S = 0.5
 """Two sightings further apart than this are not differenced (the pad was lost between them)."""
 MAX_DRIFT_M_S = 1.0
 """The largest drift believed (PX4 SIH's p95 velocity error in flight: 0.56-0.74 m/s)."""
+FADE_S = 1.0
+"""Unseen for longer than ``MAX_GAP_S``, the drift fades with this time constant: without the
+picture nothing shows it, and a stale lean pushed a vehicle that had lost the pad away from it
+for 30 s (PX4 SIH, development runs: results/real-autopilots/RENDER.md)."""
 
 
 def offset_ne(view: PadEstimate, yaw_rad: float) -> np.ndarray:
@@ -77,6 +81,14 @@ class PictureDrift:
         size = float(np.hypot(*drift))
         self.drift_ne_m_s = drift if size <= MAX_DRIFT_M_S else drift * (MAX_DRIFT_M_S / size)
 
-    def drift_fr(self, yaw_rad: float) -> np.ndarray:
-        """The drift as (forward, right) for the heading ``yaw_rad``, m/s."""
-        return to_heading_frame(self.drift_ne_m_s, yaw_rad)
+    def drift_fr(self, yaw_rad: float, time_ms: int) -> np.ndarray:
+        """The drift as (forward, right) for the heading ``yaw_rad``, m/s, at ``time_ms`` (faded
+        when the pad has not been seen for a while)."""
+        return to_heading_frame(self.drift_ne_m_s * self.fade(time_ms), yaw_rad)
+
+    def fade(self, time_ms: int) -> float:
+        """1 while the pad is seen; then, after ``MAX_GAP_S``, falling towards 0."""
+        if self._last is None:
+            return 1.0
+        unseen_s = (time_ms - self._last[0]) / 1000.0 - MAX_GAP_S
+        return 1.0 if unseen_s <= 0 else math.exp(-unseen_s / FADE_S)

@@ -45,13 +45,13 @@ vehicle_height_m = 0.0
 
 
 def fly(kind: str, root: Path, work: Path, camera: Path | None, config: Path, episodes: int,
-        speedup: float = 1.0) -> list[dict]:
+        speedup: float = 1.0, seed: int | None = None) -> list[dict]:
     ap = (start_px4 if kind == "px4" else start_ardupilot)(root, work / kind, speedup=speedup)
     run_dir = work / f"run-{kind}"
     col = str(Path(sys.executable).with_name("col"))
     try:
         cmd = [col, "fly", "--pilot", "expert", "--episodes", str(episodes), "--connect", ap.connection,
-               "--config", str(config), "--run-dir", str(run_dir)]
+               "--config", str(config), "--run-dir", str(run_dir)] + ([] if seed is None else ["--seed", str(seed)])
         done = subprocess.run(cmd + (["--camera", str(camera)] if camera is not None else []),
                               capture_output=True, text=True, timeout=1800, stdin=subprocess.DEVNULL)
     finally:
@@ -102,6 +102,8 @@ def main() -> None:
     parser.add_argument("--speedup", type=float, default=1.0,
                         help="the autopilots this many times real time (PX4_SIM_SPEED_FACTOR, --speedup), flown "
                              "by the vehicle's clock")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="episode i starts from seed + i (col fly --seed; default: the session's seed)")
     args = parser.parse_args()
     root, why = find_autopilots()
     if root is None:
@@ -130,7 +132,7 @@ def main() -> None:
         rep_dir = work / f"repeat-{repeat}"
 
         threads = [threading.Thread(target=one, args=(results, k, root, rep_dir, camera, config, args.episodes,
-                                                      args.speedup)) for k in kinds]
+                                                      args.speedup, args.seed)) for k in kinds]
         for t in threads:
             t.start()
         for t in threads:

@@ -45,7 +45,8 @@ def test_a_reading_that_misses_the_true_motion_is_judged_as_drift() -> None:
     fly(drift, np.array([0.0, 0.3]), np.array([0.1, 0.0]), seconds=5.0)
     assert drift.drift_ne_m_s == pytest.approx([-0.1, 0.3], abs=0.01)
     yaw = 0.7
-    assert drift.drift_fr(yaw) == pytest.approx(to_heading_frame(np.array([-0.1, 0.3]), yaw), abs=0.01)
+    assert drift.drift_fr(yaw, 4900) == pytest.approx(to_heading_frame(np.array([-0.1, 0.3]), yaw), abs=0.01)
+    assert np.hypot(*drift.drift_fr(yaw, 4900 + 3500)) == pytest.approx(np.hypot(-0.1, 0.3) * math.exp(-3.0), abs=0.01)
 
 
 def test_a_true_reading_is_no_drift_and_high_up_the_drift_is_learned_slower() -> None:
