@@ -48,7 +48,12 @@ HERE = transfer.HERE
 OUT = HERE / "oncraft"
 RUNS = transfer.RUNS / "oncraft"
 POLICIES = tuple(f"{p}-col-20-s0" for p in ("P1", "P2", "P3", "P4"))
-ARMS = ("int", "demo")
+ARMS = ("int", "demo", "int-drift", "demo-drift")
+"""int / demo: the participant as in the grid. The -drift arms (the plan's Amendment 2): the same
+participant, whose expert judges the drift PX4 SIH's velocity estimate does not show from the
+picture ([companion.pilot] set_down_by_picture and judge_drift_by_picture; configs/oncraft-s0-drift.toml)."""
+PAIRS = (("int", "demo"), ("int-drift", "demo-drift"))
+DRIFT_PILOT = "\n[companion.pilot]  # Amendment 2: the participant judges the drift from the picture\nset_down_by_picture = true\njudge_drift_by_picture = true\n"
 SITTINGS = (2, 2, 4)  # episodes per freshly started PX4 SIH; checkpoints after 2, 4 and 8
 FIRST_CONTINUED = 20  # the trial flew episodes 0-19
 VEHICLE, AIR = "px4-aligned", "still"  # PX4 SIH, the policy's frame moved (the plan's Amendment 1)
@@ -59,11 +64,20 @@ def replicate(key: str) -> int:
     return int(key.rsplit("-s", 1)[1])
 
 
-def config_path(rep: int) -> Path:
-    return transfer.CONFIGS / f"oncraft-s{rep}.toml"
+def config_path(rep: int, drift: bool = False) -> Path:
+    return transfer.CONFIGS / f"oncraft-s{rep}{'-drift' if drift else ''}.toml"
 
 
-def config_text(rep: int) -> str:
+def condition(arm: str) -> str:
+    """The arm's --condition: int or demo."""
+    return arm.split("-")[0]
+
+
+def drift_arm(arm: str) -> bool:
+    return arm.endswith("-drift")
+
+
+def config_text(rep: int, drift: bool = False) -> str:
     """The transfer table's PX4 config (still air) with the grid trial's learner and seeds, so
     the continued episodes learn as the trial did and start from its training seeds 20, 21, ..."""
     seed = 1000 * rep  # companion.experiment.grid.START_SEEDS_PER_REPLICATE
@@ -72,13 +86,15 @@ def config_text(rep: int) -> str:
     return (f"# CoL on the target vehicle (docs/camera.md): PX4 SIH, still air, replicate {rep}'s learner.\n"
             + real.split("\n", 1)[1]
             + f"\n[companion.learner]\nmode = \"budgeted\"  # the grid's: updates tied to control steps\n"
-              f"updates_per_step = {UPDATES_PER_STEP}\nseed = {seed}\n")
+              f"updates_per_step = {UPDATES_PER_STEP}\nseed = {seed}\n"
+            + (DRIFT_PILOT if drift else ""))
 
 
 def write_configs() -> None:
     for rep in (0,):
-        config_path(rep).write_text(config_text(rep))
-        print(f"wrote {config_path(rep).relative_to(transfer.ROOT)}")
+        for drift in (False, True):
+            config_path(rep, drift).write_text(config_text(rep, drift))
+            print(f"wrote {config_path(rep, drift).relative_to(transfer.ROOT)}")
     from colcommon.numeric_env import append_record
 
     append_record(HERE, step="oncraft-configs", command=["results/transfer/oncraft.py", "configs"])
@@ -160,8 +176,8 @@ def sitting(key: str, arm: str, done_before: int, episodes: int) -> None:
     if stale:  # a sitting cut short: its episodes are flown again from the sitting's start
         raise SystemExit(f"{folder}: holds episodes from {first} on from a sitting cut short; "
                          f"remove the folder to start {key} {arm} again")
-    cmd = [transfer.col(), "fly", "--pilot", f"synthetic:{key.split('-')[0]}", "--condition", arm,
-           "--episodes", str(episodes), "--config", str(config_path(replicate(key))), "--run-dir", str(folder),
+    cmd = [transfer.col(), "fly", "--pilot", f"synthetic:{key.split('-')[0]}", "--condition", condition(arm),
+           "--episodes", str(episodes), "--config", str(config_path(replicate(key), drift_arm(arm))), "--run-dir", str(folder),
            "--no-pictures"]
     print(f"{key} {arm}: episodes {first}-{first + episodes - 1}", flush=True)
     on_fresh_px4(cmd, RUNS / f"{key}-{arm}-{first}.log", f"{key}-{arm}-{first}")
@@ -245,8 +261,6 @@ def cell(records: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 
 def summary() -> dict[str, Any]:
-    from companion.statistics import bootstrap_mean_ci
-
     cells: dict[str, Any] = {}
     for key in POLICIES:
         cells[f"{key}/before"] = cell(read_jsonl(transfer.EPISODES / f"{key}-{VEHICLE}-{AIR}.jsonl"))
@@ -255,18 +269,25 @@ def summary() -> dict[str, Any]:
                 cells[f"{key}/{arm}/{n}"] = cell(read_jsonl(eval_path(key, arm, n)))
     contrasts: dict[str, Any] = {}
     for n in (2, 4, 8):
-        for name, other in (("int-demo", "demo"), ("int-before", None)):
-            diffs = []
-            for key in POLICIES:
-                a = cells[f"{key}/int/{n}"]
-                b = cells[f"{key}/before"] if other is None else cells[f"{key}/{other}/{n}"]
-                if a and b:
-                    diffs.append(a["pct"] - b["pct"])
-            ci = bootstrap_mean_ci(diffs) if len(diffs) >= 2 else None
-            contrasts[f"{name}/{n}"] = {"policies": len(diffs),
-                                        "mean_points": round(statistics.fmean(diffs), 2) if diffs else None,
-                                        "interval95": [round(x, 2) for x in ci] if ci else None}
+        for arm, other_arm in PAIRS:
+            for name, other in ((f"{arm}-{other_arm}", other_arm), (f"{arm}-before", None)):
+                contrasts[f"{name}/{n}"] = contrast(cells, arm, other, n)
     return {"cells": cells, "contrasts": contrasts, "plan": "docs/camera.md, CoL on the target vehicle (preregistration)"}
+
+
+def contrast(cells: dict[str, Any], arm: str, other: str | None, n: int) -> dict[str, Any]:
+    """``arm`` after ``n`` minus ``other`` after ``n`` (or before), paired by policy."""
+    from companion.statistics import bootstrap_mean_ci
+
+    diffs = []
+    for key in POLICIES:
+        a = cells[f"{key}/{arm}/{n}"]
+        b = cells[f"{key}/before"] if other is None else cells[f"{key}/{other}/{n}"]
+        if a and b:
+            diffs.append(a["pct"] - b["pct"])
+    ci = bootstrap_mean_ci(diffs) if len(diffs) >= 2 else None
+    return {"policies": len(diffs), "mean_points": round(statistics.fmean(diffs), 2) if diffs else None,
+            "interval95": [round(x, 2) for x in ci] if ci else None}
 
 
 def table(s: dict[str, Any]) -> str:
@@ -280,11 +301,15 @@ def table(s: dict[str, Any]) -> str:
              "Made by `python results/transfer/oncraft.py summarise`; the plan is docs/camera.md, \"CoL on the target "
              "vehicle (preregistration)\". On the pad by truth of 20 held-out starts, 95 % Wilson interval, median "
              "true touchdown distance.", "",
-             "| policy | before | int after 2 | int after 4 | int after 8 | demo after 2 | demo after 4 | demo after 8 |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for key in POLICIES:
-        cols = [s["cells"][f"{key}/before"]] + [s["cells"][f"{key}/{arm}/{n}"] for arm in ARMS for n in (2, 4, 8)]
-        lines.append(f"| {key} | " + " | ".join(show(c) for c in cols) + " |")
+             ]
+    for pair in PAIRS:
+        if pair != PAIRS[0]:
+            lines += ["", "The plan's Amendment 2: the participant judges the drift from the picture.", ""]
+        lines += ["| policy | before | " + " | ".join(f"{arm} after {n}" for arm in pair for n in (2, 4, 8)) + " |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for key in POLICIES:
+            cols = [s["cells"][f"{key}/before"]] + [s["cells"][f"{key}/{arm}/{n}"] for arm in pair for n in (2, 4, 8)]
+            lines.append(f"| {key} | " + " | ".join(show(c) for c in cols) + " |")
     lines += transfer.interval_rows("contrast, paired by policy", "policies", s["contrasts"], "policies", "mean_points")
     return "\n".join(lines) + "\n"
 

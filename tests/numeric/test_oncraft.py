@@ -32,8 +32,21 @@ def _load(name: str) -> ModuleType:
 oncraft = _load("oncraft")
 
 
-def test_the_committed_config_is_the_runners() -> None:
+def test_the_committed_configs_are_the_runners() -> None:
     assert oncraft.config_path(0).read_text() == oncraft.config_text(0)
+    assert oncraft.config_path(0, drift=True).read_text() == oncraft.config_text(0, drift=True)
+
+
+def test_the_drift_arms_differ_only_in_how_the_participant_judges_the_drift() -> None:
+    """The plan's Amendment 2: the same participant, learner and vehicle; its expert judges the
+    drift from the picture."""
+    base, drift = (load_companion_config(oncraft.config_path(0, d)) for d in (False, True))
+    assert not base.pilot.judge_drift_by_picture and drift.pilot.judge_drift_by_picture
+    assert drift.pilot.set_down_by_picture
+    assert drift.model_copy(update={"pilot": base.pilot}) == base
+    assert load_sitl_config(oncraft.config_path(0, True)) == load_sitl_config(oncraft.config_path(0))
+    assert [oncraft.condition(a) for a in oncraft.ARMS] == ["int", "demo", "int", "demo"]
+    assert [oncraft.drift_arm(a) for a in oncraft.ARMS] == [False, False, True, True]
 
 
 def test_the_continued_episodes_learn_as_the_grid_trial_did_on_the_transfer_tables_px4() -> None:
@@ -82,4 +95,5 @@ def test_the_contrasts_are_paired_by_policy_and_missing_cells_left_out(tmp_path:
     assert s["contrasts"]["int-demo/4"]["policies"] == 2  # P3 has no demo cell
     assert s["contrasts"]["int-demo/4"]["mean_points"] == 25.0  # (25 + 25) / 2
     assert s["contrasts"]["int-demo/2"]["policies"] == 0
+    assert s["contrasts"]["int-drift-demo-drift/4"]["policies"] == 0  # no drift arm flown here
     assert "| " + p1 + " | 5/20" in oncraft.table(s)
