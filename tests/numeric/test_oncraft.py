@@ -94,6 +94,7 @@ def test_the_contrasts_are_paired_by_policy_and_missing_cells_left_out(tmp_path:
     assert 50.0 <= before["interval95"][0] <= 55.0 <= before["interval95"][1] <= 60.0
     assert s["contrasts"]["int-demo/4"]["policies"] == 2  # P3 has no demo cell
     assert s["contrasts"]["int-demo/4"]["mean_points"] == 25.0  # (25 + 25) / 2
+    assert s["contrasts"]["int-demo/4"]["interval95"] is None  # two policies: no interval drawn
     assert s["contrasts"]["int-demo/2"]["policies"] == 0
     assert s["contrasts"]["int-drift-demo-drift/4"]["policies"] == 0  # no drift arm flown here
     assert "| " + p1 + " | 5/20" in oncraft.table(s)
