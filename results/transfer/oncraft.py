@@ -304,7 +304,7 @@ def table(s: dict[str, Any]) -> str:
     lines = ["# CoL on the target vehicle (PX4 SIH)", "",
              "Made by `python results/transfer/oncraft.py summarise`; the plan is docs/camera.md, \"CoL on the target "
              "vehicle (preregistration)\". On the pad by truth of 20 held-out starts, 95 % Wilson interval, median "
-             "true touchdown distance. The contrasts' intervals are drawn from 3 policies on.", "",
+             f"true touchdown distance. The contrasts' intervals are drawn from {MIN_POLICIES_FOR_INTERVAL} policies on.", "",
              ]
     for pair in PAIRS:
         if pair != PAIRS[0]:
