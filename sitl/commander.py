@@ -63,16 +63,22 @@ class Commander:
         why = refusal(mode, armed=st.armed, landed=st.landed, setpoints_fresh=self.setpoints_fresh())
         if why:
             return mavlink.MAV_RESULT_DENIED, why
+        st.offboard_lost_s = None  # a mode asked for takes over from the failsafe
         if mode is st.mode:
             return mavlink.MAV_RESULT_ACCEPTED, ""
         if mode is Mode.OFFBOARD:
-            st.mode = mode
-            st.setpoint = st.latest_offboard_sp or hold_setpoint(self.v.state)
-            st.failsafe_since_s = None
+            self.resume_offboard()
         else:
             self.enter(Mode.POSCTL if mode in (Mode.MANUAL, Mode.ALTCTL) else mode)
         self.v.say(mavlink.MAV_SEVERITY_INFO, f"Mode {st.mode.px4_name}")
         return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    def resume_offboard(self) -> None:
+        """OFFBOARD, flying the latest setpoint (asked for, or the stream back after a loss)."""
+        st = self.status
+        st.mode = Mode.OFFBOARD
+        st.setpoint = st.latest_offboard_sp or hold_setpoint(self.v.state)
+        st.failsafe_since_s = st.offboard_lost_s = None
 
     def enter(self, mode: Mode) -> None:
         """Enter ``mode`` with the setpoint it flies (hold/land/takeoff capture the pose now)."""

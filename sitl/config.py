@@ -62,7 +62,7 @@ class AutopilotConfig(Section):
     max_yaw_rate_rad_s: float = Field(1.5, gt=0)
     land_speed_m_s: float = Field(0.7, gt=0)
     takeoff_alt_m: float = Field(2.5, gt=0)
-    offboard_loss_hold_s: float = Field(0.5, gt=0, description="no setpoint for this long -> hold")
+    offboard_loss_hold_s: float = Field(1.0, gt=0, description="COM_OF_LOSS_T: no setpoint for this long -> hold (real PX4 SIH reads 1.0)")
     offboard_loss_land_s: float = Field(5.0, gt=0, description="then after this much more -> land")
     # Cascade gains (sitl/control.py), tuned on the JSBSim F450 at 126 Hz.
     pos_p_xy: float = Field(1.0, ge=0, description="position -> velocity, 1/s")

@@ -36,6 +36,7 @@ class FlightStatus:
     latest_offboard_sp: Setpoint | None = None  # that setpoint, flown once OFFBOARD is entered
     manual_at_s: float = -math.inf  # manual_control_setpoint: the sticks' last time
     failsafe_since_s: float | None = None  # failsafe: holding since, after offboard loss
+    offboard_lost_s: float | None = None  # failsafe: OFFBOARD lost then; it holds or lands until setpoints return
 
     @property
     def landed(self) -> bool:
@@ -56,6 +57,7 @@ class FlightStatus:
         self.last_offboard_s = -math.inf
         self.latest_offboard_sp = None
         self.failsafe_since_s = None
+        self.offboard_lost_s = None
         self.armed_at_s = -math.inf
         self.manual_at_s = -math.inf
 

@@ -164,7 +164,7 @@ def leave_safe(link: VehicleLink, dialect: Dialect, policy: EndOfRun) -> str:
 def streaming(link: VehicleLink, setpoint: VelocitySetpoint, period_s: float) -> Iterator[None]:
     """Keep sending ``setpoint`` every ``period_s`` from a thread while the block runs.
 
-    Why: PX4 holds OFFBOARD only while setpoints keep coming (``COM_OF_LOSS_T``, 0.5 s), and a
+    Why: PX4 holds OFFBOARD only while setpoints keep coming (``COM_OF_LOSS_T``, 1 s), and a
     mode request blocks until its COMMAND_ACK. On a lossy link the ACK is lost one time in ten;
     the request is sent again a second later, and with the stream paused meanwhile the vehicle
     has given OFFBOARD up (or refuses it: "stream setpoints first"). Real time only: in lockstep

@@ -485,7 +485,7 @@ class PrecLandScript(Script):
         for _ in range(3):
             self._target(point, wrong_frame=True)
             self._pump(0.2)
-        self._pump(1.0)
+        self._wait_for_text(said, "rame")
         pr.wrong_frame_texts = pr.texts[said:]
         self._send_targets(point, 1.5)
         pr.mode_ack = self._precland_mode(px4)
@@ -498,6 +498,17 @@ class PrecLandScript(Script):
         if landed is not None:
             pr.touchdown_from_point_m = round(math.hypot(point[0] - self.xy[0], point[1] - self.xy[1]), 2)
         return self._finish_precland()
+
+    def _wait_for_text(self, said: int, part: str, vehicle_s: float = 1.0, wall_s: float = 4.0) -> None:
+        """Read on until a text said after the first ``said`` holds ``part``, for at least
+        ``vehicle_s`` of the vehicle's time and ``wall_s`` of the wall's: PX4's texts come on a
+        second link, read by a thread that a loaded machine can hold back longer than a fast
+        vehicle takes for a second."""
+        start_v, deadline = self.clock.seconds, time.monotonic() + wall_s
+        while not any(part in text for text in self.pr.texts[said:]):
+            if self.clock.seconds - start_v >= vehicle_s and time.monotonic() >= deadline:
+                return
+            self._pump(0.1)
 
     def _plnd_on_and_reboot(self) -> None:
         """PLND_ENABLED = 1, PLND_TYPE = 1 (MAVLink), then a reboot: ArduCopter makes its

@@ -34,6 +34,10 @@ from tests.autopilots import SPEEDUP
 pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
 KINDS = ("px4", "ardupilot")
 NEAR_M = 1.0  # "lands near the point": within this, horizontally, in the vehicle's own frame
+# Real PX4 SIH's estimated position wanders 0.3-0.5 m while it approaches and descends, and its
+# touchdowns were 0.15-1.11 m from the point over six runs (results/precland/conformance/RUN.md);
+# a vertical landing where it stood would be 3.6 m off. Within this it steered to the point.
+REAL_PX4_NEAR_M = 1.5
 
 
 @pytest.fixture(scope="module")
@@ -101,8 +105,9 @@ def test_our_sitl_answers_and_lands_as_the_real_autopilot_does(outcomes: dict[st
     assert (ours.mode_ack, ours.mode_in_heartbeat) == (real.mode_ack, real.mode_in_heartbeat), (real, ours)
     assert ours.reboot_ack == real.reboot_ack, (real, ours)  # ArduPilot: PLND_TYPE needs the reboot
     assert set(ours.params) == set(real.params) and all(v is not None for v in ours.params.values()), ours.params
-    for outcome in (real, ours):  # both land near the point the LANDING_TARGETs name
-        assert outcome.touchdown_from_point_m is not None and outcome.touchdown_from_point_m < NEAR_M, (real, ours)
+    for outcome, near_m in ((real, REAL_PX4_NEAR_M if kind == "px4" else NEAR_M), (ours, NEAR_M)):
+        # both land near the point the LANDING_TARGETs name
+        assert outcome.touchdown_from_point_m is not None and outcome.touchdown_from_point_m < near_m, (real, ours)
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -15,7 +15,7 @@ from tests.conftest import free_port, wait_until
 
 pytestmark = pytest.mark.e2e
 
-COM_OF_LOSS_T = 0.5
+COM_OF_LOSS_T = 1.0  # the SITL's default (sitl.autopilot.offboard_loss_hold_s)
 
 
 def _records(run_dir: Path) -> list[dict]:

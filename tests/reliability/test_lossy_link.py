@@ -20,7 +20,7 @@ from tests.conftest import free_port, wait_until
 
 pytestmark = pytest.mark.realtime  # flies in real time: a higher priority where allowed
 
-COM_OF_LOSS_T = 0.5  # the SITL's default (sitl.autopilot.offboard_loss_hold_s)
+COM_OF_LOSS_T = 1.0  # the SITL's default (sitl.autopilot.offboard_loss_hold_s)
 
 
 def _pair() -> tuple[socket.socket, socket.socket]:

@@ -85,12 +85,39 @@ def test_offboard_loss_holds_then_lands(vehicle: SimVehicle) -> None:
     vehicle.reset_episode(seed=2)
     vehicle.offboard_setpoint(body_velocity())
     vehicle.request_mode(Mode.OFFBOARD)
-    run_s(vehicle, 0.4)
+    run_s(vehicle, 0.9)
     assert vehicle.mode is Mode.OFFBOARD
-    run_s(vehicle, 0.3)  # past COM_OF_LOSS_T = 0.5 s
+    run_s(vehicle, 0.2)  # past COM_OF_LOSS_T = 1 s
     assert vehicle.mode is Mode.AUTO_LOITER
     run_s(vehicle, 5.0)  # past COM_OBL_LAND_T = 5 s more
     assert vehicle.mode is Mode.AUTO_LAND
+
+
+@pytest.mark.parametrize("gap_s", [2.0, 6.5])
+def test_setpoints_back_after_a_loss_give_offboard_back_in_the_hold_and_in_the_land(vehicle: SimVehicle,
+                                                                                   gap_s: float) -> None:
+    """Real PX4 went back to OFFBOARD when the setpoints came back, after a failsafe of 5 s too
+    (results/conformance/setpoint-gap.json); the stream it gets back is the one it flies."""
+    vehicle.reset_episode(seed=2)
+    vehicle.offboard_setpoint(body_velocity())
+    vehicle.request_mode(Mode.OFFBOARD)
+    run_s(vehicle, gap_s)
+    assert vehicle.mode is (Mode.AUTO_LOITER if gap_s < 6.0 else Mode.AUTO_LAND)
+    run_s(vehicle, 0.5, lambda v: v.offboard_setpoint(body_velocity(forward=1.0)))
+    assert vehicle.mode is Mode.OFFBOARD
+    run_s(vehicle, 2.0, lambda v: v.offboard_setpoint(body_velocity(forward=1.0)))
+    assert vehicle.state.velocity_ned_m_s[0] == pytest.approx(1.0, abs=0.15)
+
+
+def test_a_mode_asked_for_in_the_failsafe_is_kept_when_setpoints_come_back(vehicle: SimVehicle) -> None:
+    """The person took over (asked for a hold): the stream coming back does not take it away."""
+    vehicle.reset_episode(seed=2)
+    vehicle.offboard_setpoint(body_velocity())
+    vehicle.request_mode(Mode.OFFBOARD)
+    run_s(vehicle, 2.0)
+    assert vehicle.request_mode(Mode.AUTO_LOITER)[0] == M.MAV_RESULT_ACCEPTED
+    run_s(vehicle, 8.0, lambda v: v.offboard_setpoint(body_velocity(forward=1.0)))
+    assert vehicle.mode is Mode.AUTO_LOITER  # neither OFFBOARD again nor the failsafe's land
 
 
 def test_nan_setpoints_are_refused_and_do_not_keep_offboard_alive(vehicle: SimVehicle) -> None:
@@ -98,7 +125,7 @@ def test_nan_setpoints_are_refused_and_do_not_keep_offboard_alive(vehicle: SimVe
     vehicle.offboard_setpoint(body_velocity())
     vehicle.request_mode(Mode.OFFBOARD)
     bad = body_velocity(forward=math.nan)
-    run_s(vehicle, 1.0, lambda v: v.offboard_setpoint(bad))
+    run_s(vehicle, 1.5, lambda v: v.offboard_setpoint(bad))  # past COM_OF_LOSS_T = 1 s
     assert vehicle.rejected_setpoints > 0
     assert vehicle.mode is Mode.AUTO_LOITER  # the stream of garbage counts as no stream
     assert all(math.isfinite(c) for c in vehicle.state.position_ned_m)
