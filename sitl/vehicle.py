@@ -67,6 +67,7 @@ class SimVehicle:
                                                  self.world, self.controller, self.say, self._carried_velocity())
         self.height_offset_m = self.estimator_height_offset_m()
         self.params = ParamStore(autopilot_params(cfg.autopilot))
+        self._loss_timeout_for_speed()
         self.rng = np.random.default_rng(cfg.world.seed)
         self.events: deque[tuple[int, str]] = deque(maxlen=64)
         self.episode = 0
@@ -81,6 +82,15 @@ class SimVehicle:
         self.dynamics.reset(spawn, yaw_rad=self.disturbance.yaw_rad)
         self._start_disturbance()
         self._enter_landed_disarmed()
+
+    def _loss_timeout_for_speed(self) -> None:
+        """COM_OF_LOSS_T times the speed factor when the clock runs faster or slower than real
+        time, as PX4's SITL start script (rcS) sets it for ``PX4_SIM_SPEED_FACTOR``: a companion
+        on the wall clock keeps OFFBOARD through the same pauses at any speed (real PX4 SIH at 2x
+        failed safe 2 s into a gap, results/conformance/setpoint-gap.json). Lockstep is untouched."""
+        clock = self.cfg.clock
+        if clock.mode == "realtime" and clock.speed != 1.0:
+            self.params.set("COM_OF_LOSS_T", self.cfg.autopilot.offboard_loss_hold_s * clock.speed)
 
     # ----- parts (a personality swaps them) -----------------------------------------------
     def _new_commander(self) -> Commander:

@@ -30,6 +30,7 @@ class GapOutcome:
     """The modes a vehicle showed from the gap's start (seconds of its time, mode name)."""
 
     gap_s: float
+    loss_t_s: float | None = None  # COM_OF_LOSS_T as the vehicle read it back
     offboard_ack: str = ""
     modes: list[tuple[float, str]] = field(default_factory=list)
     texts: list[tuple[float, str]] = field(default_factory=list)  # said from the gap's start
@@ -50,8 +51,9 @@ class GapOutcome:
 class GapScript(Script):
     """Take off, OFFBOARD, a gap in the setpoints, the stream again."""
 
-    def __init__(self, connection: str, texts_from: str | None = None) -> None:
+    def __init__(self, connection: str, texts_from: str | None = None, loss_t_s: float | None = None) -> None:
         super().__init__(connection)
+        self.loss_t_s = loss_t_s
         self.listener = TextListener(texts_from) if texts_from else None
         self.said: list[str] = []
 
@@ -75,6 +77,9 @@ class GapScript(Script):
         for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 10),
                             ("HEARTBEAT", HEARTBEAT_HZ)):
             self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        if self.loss_t_s is not None:
+            self.mav.mav.param_set_send(self.mav.target_system, 1, b"COM_OF_LOSS_T", self.loss_t_s, M.MAV_PARAM_TYPE_REAL32)
+        out.loss_t_s = self._param("COM_OF_LOSS_T")
         takeoff_mode, offboard_mode = MODES["PX4"]
         self._arm(takeoff_mode, armable_timeout_s)
         if not self.armed:
@@ -113,13 +118,15 @@ class GapScript(Script):
         return out
 
 
-def fly_gap(connection: str, gap_s: float, texts_from: str | None = None) -> GapOutcome:
+def fly_gap(connection: str, gap_s: float, texts_from: str | None = None, loss_t_s: float | None = None) -> GapOutcome:
     """The gap script once against the PX4 vehicle at ``connection`` (STATUSTEXT also from
-    ``texts_from``: PX4 says its failsafes on its ground station link only)."""
-    return GapScript(connection, texts_from).fly_gap(gap_s)
+    ``texts_from``: PX4 says its failsafes on its ground station link only; COM_OF_LOSS_T set
+    to ``loss_t_s`` first, if given)."""
+    return GapScript(connection, texts_from, loss_t_s).fly_gap(gap_s)
 
 
-def fly_pair(root: Path, work: Path, config: Path, gap_s: float, speedup: float) -> dict[str, GapOutcome]:
+def fly_pair(root: Path, work: Path, config: Path, gap_s: float, speedup: float,
+             loss_t_s: float | None = None) -> dict[str, GapOutcome]:
     """A fresh real PX4 SIH and our SITL as PX4, the gap script against both at once."""
     from companion.simulator import start_sitl
     from companion.testing.autopilots import PX4_LOCAL_PORTS, free_udp_port, start_px4
@@ -134,7 +141,7 @@ def fly_pair(root: Path, work: Path, config: Path, gap_s: float, speedup: float)
 
     def fly(name: str) -> None:
         try:
-            outcomes[name] = fly_gap(connections[name], gap_s, texts_from.get(name))
+            outcomes[name] = fly_gap(connections[name], gap_s, texts_from.get(name), loss_t_s)
         except Exception as exc:  # reported in the file
             outcomes[name] = GapOutcome(gap_s, errors=[repr(exc)])
 
@@ -158,6 +165,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--gaps", type=float, nargs="+", default=list(DEFAULT_GAPS_S), help="seconds of the vehicle's time")
     parser.add_argument("--speedup", type=float, default=2.0, help="real PX4 and our SITL this many times real time")
+    parser.add_argument("--loss-t", type=float, help="set COM_OF_LOSS_T to this first (default: leave each vehicle's own)")
     parser.add_argument("--out", type=Path, help="also write the JSON here")
     args = parser.parse_args()
     root, why = find_autopilots()
@@ -166,9 +174,9 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="setpoint-gap-"))
     config = work / "sitl.toml"
     config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
-    report: dict[str, Any] = {"speedup": args.speedup, "after_s": AFTER_S, "heartbeat_hz": HEARTBEAT_HZ, "gaps": []}
+    report: dict[str, Any] = {"speedup": args.speedup, "loss_t_set": args.loss_t, "after_s": AFTER_S, "heartbeat_hz": HEARTBEAT_HZ, "gaps": []}
     for gap in args.gaps:
-        outcomes = fly_pair(root, work, config, gap, args.speedup)
+        outcomes = fly_pair(root, work, config, gap, args.speedup, args.loss_t)
         report["gaps"].append({name: outcomes[name].to_dict() for name in sorted(outcomes)})
         print(f"gap {gap:g} s: " + "; ".join(f"{n} {outcomes[n].modes}" for n in sorted(outcomes)), flush=True)
     text = json.dumps(report, indent=1)

@@ -202,3 +202,12 @@ def test_a_speed_limit_set_by_parameter_is_flown_at_once(vehicle: SimVehicle) ->
     assert vehicle.state.velocity_ned_m_s[0] == pytest.approx(1.0, abs=0.1)
     assert vehicle.controller.cfg.max_speed_xy_m_s == 1.0
     assert not vehicle.set_param("NO_SUCH_PARAM", 1.0)
+
+
+@pytest.mark.parametrize(("mode", "speed", "loss_t"), [("realtime", 1.0, 1.0), ("realtime", 4.0, 4.0),
+                                                      ("realtime", 0.5, 0.5), ("lockstep", 4.0, 1.0)])
+def test_the_offboard_loss_time_scales_with_the_speed_as_px4s_start_script_sets_it(mode: str, speed: float,
+                                                                                    loss_t: float) -> None:
+    """PX4's rcS: COM_OF_LOSS_T = speed factor x 1 s; real PX4 SIH at 2x read 2.0 and failed safe 2 s into a gap."""
+    cfg = SitlConfig.model_validate({"clock": {"mode": mode, "speed": speed}})
+    assert SimVehicle(cfg).params.get("COM_OF_LOSS_T") == pytest.approx(loss_t)
