@@ -20,7 +20,8 @@ from tests.conftest import free_port, wait_until
 
 pytestmark = pytest.mark.realtime  # flies in real time: a higher priority where allowed
 
-COM_OF_LOSS_T = 1.0  # the SITL's default (sitl.autopilot.offboard_loss_hold_s)
+SPEED = 2.0  # the proxied SITL's real-time speed factor
+COM_OF_LOSS_T = 1.0 * SPEED  # the SITL's default x its speed, as PX4's SITL start script sets it (docs/sitl.md)
 
 
 def _pair() -> tuple[socket.socket, socket.socket]:
@@ -82,7 +83,7 @@ def test_the_proxy_delays_and_blacks_out() -> None:
 def proxied() -> Iterator[tuple[SitlProcess, LossyProxy, MavlinkLink, SimulatorClient]]:
     port = free_port()
     proxy = LossyProxy(port, seed=3).start()
-    sitl = start_sitl(proxy.vehicle_port, clock="realtime", camera=False, extra_args=["--speed", "2"])
+    sitl = start_sitl(proxy.vehicle_port, clock="realtime", camera=False, extra_args=["--speed", f"{SPEED:g}"])
     link = MavlinkLink(LinkConfig(connection=f"udpin:127.0.0.1:{port}"))
     sim = SimulatorClient("127.0.0.1", sitl.control_port)
     try:
