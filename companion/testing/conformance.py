@@ -15,9 +15,14 @@ ACK or a parameter's value, and the safety limits, are on the wall clock.
 
 from __future__ import annotations
 
+import json
 import math
+import tempfile
+import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from pymavlink import mavutil
@@ -269,18 +274,45 @@ def differences(real: Outcome, ours: Outcome) -> list[str]:
     return diffs
 
 
+def in_parallel(names: Iterable[str], fly: Callable[[str], None]) -> None:
+    """``fly(name)`` for each name on a thread of its own, all at once; return when all are done."""
+    threads = [threading.Thread(target=fly, args=(name,)) for name in names]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+
+
+def autopilots_and_work(prefix: str) -> tuple[Path, Path, Path]:
+    """The real autopilots' folder (or exit saying how to get them), a fresh work folder, and in
+    it our SITL's config for these comparisons (a PX4-like pre-arm settling of 4 s)."""
+    from companion.testing.autopilots import find_autopilots
+
+    root, why = find_autopilots()
+    if root is None:
+        raise SystemExit(why)
+    work = Path(tempfile.mkdtemp(prefix=prefix))
+    config = work / "sitl.toml"
+    config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
+    return root, work, config
+
+
+def print_report(report: dict[str, Any], out: Path | None) -> None:
+    """Print ``report`` as JSON, and write it to ``out`` too when given."""
+    text = json.dumps(report, indent=1)
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n")
+    print(text)
+
+
 def main() -> None:
     """Fly the script against real PX4 SIH, real ArduCopter and our SITL as each, side by side,
     and print one JSON object: each outcome and the differences (docs/link.md's table)."""
     import argparse
-    import json
-    import tempfile
-    import threading
-    from pathlib import Path
 
     from companion.simulator import start_sitl
     from companion.testing.autopilots import (
-        find_autopilots,
         free_udp_port,
         start_ardupilot,
         start_px4,
@@ -293,12 +325,7 @@ def main() -> None:
                             help=f"real {kind} and our SITL as it this many times real time (the script counts their time)")
     args = parser.parse_args()
     speedup = {"px4": args.px4_speedup, "ardupilot": args.ardupilot_speedup}
-    root, why = find_autopilots()
-    if root is None:
-        raise SystemExit(why)
-    work = Path(tempfile.mkdtemp(prefix="conformance-"))
-    config = work / "sitl.toml"
-    config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
+    root, work, config = autopilots_and_work("conformance-")
     connections: dict[str, str] = {}
     stops = []
     for kind, start in (("real px4", start_px4), ("real ardupilot", start_ardupilot)):
@@ -317,21 +344,13 @@ def main() -> None:
         outcomes[name] = fly_script(connections[name])
 
     try:
-        threads = [threading.Thread(target=fly, args=(name,)) for name in connections]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
+        in_parallel(connections, fly)
     finally:
         for stop in stops:
             stop()
-    report = {"outcomes": {k: v.to_dict() for k, v in sorted(outcomes.items())},
-              "differences": {p: differences(outcomes[f"real {p}"], outcomes[f"ours {p}"]) for p in ("px4", "ardupilot")}}
-    text = json.dumps(report, indent=1)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
-    print(text)
+    print_report({"outcomes": {k: v.to_dict() for k, v in sorted(outcomes.items())},
+                  "differences": {p: differences(outcomes[f"real {p}"], outcomes[f"ours {p}"]) for p in ("px4", "ardupilot")}},
+                  args.out)
 
 
 if __name__ == "__main__":

@@ -11,14 +11,21 @@ whether it takes it back (``python -m companion.testing.setpoint_gap --out FILE`
 from __future__ import annotations
 
 import argparse
-import json
-import tempfile
-import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.testing.conformance import MODES, NAN, TAKEOFF_ALT_M, M, Script, TextListener
+from companion.testing.conformance import (
+    MODES,
+    NAN,
+    TAKEOFF_ALT_M,
+    M,
+    Script,
+    TextListener,
+    autopilots_and_work,
+    in_parallel,
+    print_report,
+)
 
 AFTER_S = 12.0  # of the vehicle's time: streaming again after the gap
 HEARTBEAT_HZ = 10.0  # PX4 and our SITL send HEARTBEAT at 1 Hz unless asked: a short failsafe would go unseen
@@ -146,11 +153,7 @@ def fly_pair(root: Path, work: Path, config: Path, gap_s: float, speedup: float,
             outcomes[name] = GapOutcome(gap_s, errors=[repr(exc)])
 
     try:
-        threads = [threading.Thread(target=fly, args=(name,)) for name in connections]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
+        in_parallel(connections, fly)
     finally:
         real.stop()
         ours.stop()
@@ -160,7 +163,6 @@ def fly_pair(root: Path, work: Path, config: Path, gap_s: float, speedup: float,
 def main() -> None:
     """Fly the gap script against real PX4 SIH and our SITL as PX4, side by side, a fresh pair
     for each gap, and print one JSON object (each outcome, by gap)."""
-    from companion.testing.autopilots import find_autopilots
 
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--gaps", type=float, nargs="+", default=list(DEFAULT_GAPS_S), help="seconds of the vehicle's time")
@@ -168,22 +170,13 @@ def main() -> None:
     parser.add_argument("--loss-t", type=float, help="set COM_OF_LOSS_T to this first (default: leave each vehicle's own)")
     parser.add_argument("--out", type=Path, help="also write the JSON here")
     args = parser.parse_args()
-    root, why = find_autopilots()
-    if root is None:
-        raise SystemExit(why)
-    work = Path(tempfile.mkdtemp(prefix="setpoint-gap-"))
-    config = work / "sitl.toml"
-    config.write_text("[sitl.personality]\nprearm_settle_s = 4.0\n")
+    root, work, config = autopilots_and_work("setpoint-gap-")
     report: dict[str, Any] = {"speedup": args.speedup, "loss_t_set": args.loss_t, "after_s": AFTER_S, "heartbeat_hz": HEARTBEAT_HZ, "gaps": []}
     for gap in args.gaps:
         outcomes = fly_pair(root, work, config, gap, args.speedup, args.loss_t)
         report["gaps"].append({name: outcomes[name].to_dict() for name in sorted(outcomes)})
         print(f"gap {gap:g} s: " + "; ".join(f"{n} {outcomes[n].modes}" for n in sorted(outcomes)), flush=True)
-    text = json.dumps(report, indent=1)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
-    print(text)
+    print_report(report, args.out)
 
 
 if __name__ == "__main__":
