@@ -101,8 +101,9 @@ def test_setpoints_back_after_a_loss_give_offboard_back_in_the_hold_and_in_the_l
     vehicle.reset_episode(seed=2)
     vehicle.offboard_setpoint(body_velocity())
     vehicle.request_mode(Mode.OFFBOARD)
-    run_s(vehicle, gap_s)
-    assert vehicle.mode is (Mode.AUTO_LOITER if gap_s < 6.0 else Mode.AUTO_LAND)
+    run_s(vehicle, gap_s)  # simulation time: run_s steps the FDM, no wall clock
+    land_after_s = vehicle.params.get("COM_OF_LOSS_T") + vehicle.params.get("COM_OBL_LAND_T")  # 1 + 5 s
+    assert vehicle.mode is (Mode.AUTO_LOITER if gap_s < land_after_s else Mode.AUTO_LAND)
     run_s(vehicle, 0.5, lambda v: v.offboard_setpoint(body_velocity(forward=1.0)))
     assert vehicle.mode is Mode.OFFBOARD
     run_s(vehicle, 2.0, lambda v: v.offboard_setpoint(body_velocity(forward=1.0)))
