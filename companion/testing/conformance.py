@@ -20,6 +20,7 @@ import math
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -66,11 +67,44 @@ class Outcome:
         return asdict(self)
 
 
-class Script:
-    """The scripted flight on one MAVLink connection."""
+class TextListener:
+    """STATUSTEXT from a second link, on a thread, saying HEARTBEAT as a ground station: PX4 sends
+    none on its onboard (API) link, and on its ground station link only to a peer it heard."""
 
-    def __init__(self, connection: str, slow_s: float = 25.0, fast_s: float = 20.0) -> None:
+    def __init__(self, connection: str) -> None:
+        import threading
+
+        self.texts: list[str] = []
+        self._mav = mavutil.mavlink_connection(connection, source_system=247)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_beat = 0.0
+        while not self._stop.is_set():
+            if time.monotonic() >= next_beat:
+                self._mav.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                next_beat = time.monotonic() + 1.0
+            msg = self._mav.recv_match(type="STATUSTEXT", blocking=True, timeout=0.2)
+            if msg is not None and msg.get_srcComponent() == 1:
+                self.texts.append(str(msg.text))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self._mav.close()
+
+
+class Script:
+    """The scripted flight on one MAVLink connection (and what the vehicle says, on it and, from
+    ``texts_from``, on a second link)."""
+
+    def __init__(self, connection: str, slow_s: float = 25.0, fast_s: float = 20.0,
+                 texts_from: str | None = None) -> None:
         self.mav = mavutil.mavlink_connection(connection, source_system=246, source_component=191)
+        self.listener = TextListener(texts_from) if texts_from else None
+        self._unheard: deque[str] = deque(maxlen=200)
         self.slow_s, self.fast_s = slow_s, fast_s
         self.out = Outcome()
         self.z = NAN
@@ -110,10 +144,20 @@ class Script:
         elif kind == "HEARTBEAT" and msg.type not in (M.MAV_TYPE_GCS, M.MAV_TYPE_ONBOARD_CONTROLLER):
             self.armed = bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
             self.mode = mavutil.mode_string_v10(msg)
-        elif kind == "STATUSTEXT" and msg.severity <= M.MAV_SEVERITY_WARNING:
+        elif kind == "STATUSTEXT":
             text = str(msg.text)
-            if text not in self.out.arm_refusals and len(self.out.arm_refusals) < 20:
+            self._unheard.append(text)
+            if msg.severity <= M.MAV_SEVERITY_WARNING and text not in self.out.arm_refusals \
+                    and len(self.out.arm_refusals) < 20:
                 self.out.arm_refusals.append(text)
+
+    def _heard(self) -> list[str]:
+        """What the vehicle said since the last call, on this link and on the second one."""
+        texts = list(self._unheard)
+        self._unheard.clear()
+        while self.listener is not None and self.listener.texts:
+            texts.append(self.listener.texts.pop(0))
+        return texts
 
     def _command(self, command: int, params: list[float], timeout_s: float = 3.0) -> str:
         padded = (params + [0.0] * 7)[:7]
@@ -244,6 +288,8 @@ class Script:
             else:
                 self._command(M.MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, NAN, NAN, NAN, NAN])
         self.mav.close()
+        if self.listener is not None:
+            self.listener.close()
         return out
 
 
@@ -388,44 +434,14 @@ class PrecLandOutcome:
         return asdict(self)
 
 
-class TextListener:
-    """STATUSTEXT from a second link, on a thread, saying HEARTBEAT as a ground station: PX4 sends
-    none on its onboard (API) link, and on its ground station link only to a peer it heard."""
-
-    def __init__(self, connection: str) -> None:
-        import threading
-
-        self.texts: list[str] = []
-        self._mav = mavutil.mavlink_connection(connection, source_system=247)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        next_beat = 0.0
-        while not self._stop.is_set():
-            if time.monotonic() >= next_beat:
-                self._mav.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                next_beat = time.monotonic() + 1.0
-            msg = self._mav.recv_match(type="STATUSTEXT", blocking=True, timeout=0.2)
-            if msg is not None and msg.get_srcComponent() == 1:
-                self.texts.append(str(msg.text))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self._mav.close()
-
-
 class PrecLandScript(Script):
     """Take off, send LANDING_TARGET for a fixed point 3 m north, 2 m east of the take-off place
     (PX4: LOCAL_NED; ArduPilot: BODY_FRD, from the vehicle's own reported position and attitude),
     ask for precision landing (PX4: AUTO.PRECLAND; ArduPilot: PLND on, LAND) and see where it lands."""
 
     def __init__(self, connection: str, land_s: float = 60.0, texts_from: str | None = None) -> None:
-        super().__init__(connection)
+        super().__init__(connection, texts_from=texts_from)
         self.land_s = land_s
-        self.listener = TextListener(texts_from) if texts_from else None
         self.pr = PrecLandOutcome()
         self.xy = (NAN, NAN)
         self.attitude = (0.0, 0.0, 0.0)
@@ -442,8 +458,6 @@ class PrecLandScript(Script):
             self.attitude = (float(msg.roll), float(msg.pitch), float(msg.yaw))
         elif kind == "HEARTBEAT" and msg.type not in (M.MAV_TYPE_GCS, M.MAV_TYPE_ONBOARD_CONTROLLER):
             self.custom_mode = int(msg.custom_mode)
-        elif kind == "STATUSTEXT":
-            self._said(str(msg.text))
 
     def _said(self, text: str) -> None:
         if len(self.pr.texts) < 40 and text not in self.pr.texts:
@@ -459,8 +473,8 @@ class PrecLandScript(Script):
         self._heard_texts()
 
     def _heard_texts(self) -> None:
-        while self.listener is not None and self.listener.texts:
-            self._said(self.listener.texts.pop(0))
+        for text in self._heard():
+            self._said(text)
 
     def _target(self, point: tuple[float, float, float], wrong_frame: bool = False) -> None:
         from sitl.landing_target import FRAME_BODY_FRD, FRAME_LOCAL_NED, ned_to_body
@@ -561,8 +575,6 @@ class PrecLandScript(Script):
 
     def _finish_precland(self) -> PrecLandOutcome:
         self._finish()
-        if self.listener is not None:
-            self.listener.close()
         return self.pr
 
 

@@ -21,7 +21,6 @@ from companion.testing.conformance import (
     TAKEOFF_ALT_M,
     M,
     Script,
-    TextListener,
     autopilots_and_work,
     in_parallel,
     print_report,
@@ -59,22 +58,8 @@ class GapScript(Script):
     """Take off, OFFBOARD, a gap in the setpoints, the stream again."""
 
     def __init__(self, connection: str, texts_from: str | None = None, loss_t_s: float | None = None) -> None:
-        super().__init__(connection)
+        super().__init__(connection, texts_from=texts_from)
         self.loss_t_s = loss_t_s
-        self.listener = TextListener(texts_from) if texts_from else None
-        self.said: list[str] = []
-
-    def _fold(self, msg: Any) -> None:
-        super()._fold(msg)
-        if msg.get_type() == "STATUSTEXT" and msg.get_srcComponent() == 1:
-            self.said.append(str(msg.text))
-
-    def _heard(self) -> list[str]:
-        """What the vehicle said since the last call, on either link."""
-        texts, self.said = self.said, []
-        while self.listener is not None and self.listener.texts:
-            texts.append(self.listener.texts.pop(0))
-        return texts
 
     def fly_gap(self, gap_s: float, armable_timeout_s: float = 120.0) -> GapOutcome:
         out = GapOutcome(gap_s)
@@ -120,8 +105,6 @@ class GapScript(Script):
         if self.armed:
             self._command(M.MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, NAN, NAN, NAN, NAN])
         self._finish()
-        if self.listener is not None:
-            self.listener.close()
         return out
 
 
