@@ -4,7 +4,10 @@ Why alternately: a machine's speed drifts during a session (other jobs, thermal 
 of one side in a row would carry that drift into the comparison. Each of ``--runs`` rounds runs
 both sides, the side that goes first alternating, and each run's last JSON line is kept. The
 summary gives, for every numeric figure whose name says it is a rate or a cost
-(``steps_per_s``, ``cpu_ms_per_step``, ...), the median of each side and after / before.
+(``steps_per_s``, ``cpu_ms_per_step``, ...), the median of each side and after / before, and
+the median over rounds of each round's own after / before (``paired_after_over_before``): the
+two runs of a round ran minutes apart, so the ratio within a round carries less of the
+machine's drift than the ratio of the two sides' medians.
 
     python bench/ab.py BEFORE AFTER --bench rl_env_speed.py [--runs 3] [--out DIR] [-- ARGS...]
 
@@ -51,23 +54,28 @@ def run_bench(tree: Path, bench: str, args: list[str]) -> dict:
 
 
 def figures(line: dict, prefix: str = "") -> dict[str, float]:
-    """Every numeric leaf whose name is a rate or a cost, by its dotted path."""
+    """Every numeric leaf whose dotted path names a rate or a cost (a leaf under
+    ``cpu_ms_per_step: {"1": ...}`` too)."""
     out: dict[str, float] = {}
     for key, value in line.items():
         path = f"{prefix}{key}"
         if isinstance(value, dict):
             out.update(figures(value, path + "."))
-        elif isinstance(value, (int, float)) and not isinstance(value, bool) and any(f in key for f in FIGURES):
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and any(f in path for f in FIGURES):
             out[path] = float(value)
     return out
 
 
 def summary(before: list[dict], after: list[dict]) -> dict[str, dict[str, float]]:
+    """Per figure: each side's median, their ratio, and the median of the rounds' own ratios
+    (``before[i]`` and ``after[i]`` are round ``i``'s two runs)."""
     out = {}
     fb, fa = [figures(x) for x in before], [figures(x) for x in after]
     for name in sorted(set.intersection(*(set(f) for f in fb + fa))):
         b, a = statistics.median(f[name] for f in fb), statistics.median(f[name] for f in fa)
-        out[name] = {"before": b, "after": a, "after_over_before": round(a / b, 4) if b else float("nan")}
+        rounds = [x[name] / y[name] for x, y in zip(fa, fb) if y[name]]
+        out[name] = {"before": b, "after": a, "after_over_before": round(a / b, 4) if b else float("nan"),
+                     "paired_after_over_before": round(statistics.median(rounds), 4) if rounds else float("nan")}
     return out
 
 

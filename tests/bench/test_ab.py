@@ -1,0 +1,36 @@
+"""bench/ab.py's summary: which figures it compares and how (it decides what a before/after
+bench run is said to show)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def ab():
+    spec = importlib.util.spec_from_file_location("bench_ab", ROOT / "bench" / "ab.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_only_rates_and_costs_are_compared_by_their_dotted_path(ab) -> None:
+    line = {"bench": "x", "eval_cpu_ms_per_step": 2.0, "eval_episodes": 40, "ok": True,
+            "lanes": {"cpu_ms_per_step": {"1": 1.5}, "episodes": 20}}
+    assert ab.figures(line) == {"eval_cpu_ms_per_step": 2.0, "lanes.cpu_ms_per_step.1": 1.5}
+
+
+def test_the_paired_ratio_is_the_median_of_the_rounds_own_ratios(ab) -> None:
+    """A machine that drifts between rounds moves both runs of a round: the side medians see a
+    change of 9 % where each round's own ratio is 1.0 or near it."""
+    before = [{"cpu_ms_per_step": v} for v in (1.0, 1.0, 1.5, 1.5, 1.5)]
+    after = [{"cpu_ms_per_step": v} for v in (1.0, 1.02, 1.5, 1.5, 1.4)]
+    row = ab.summary(before, after)["cpu_ms_per_step"]
+    assert row["before"] == 1.5 and row["after"] == 1.4
+    assert row["after_over_before"] == pytest.approx(0.9333, abs=1e-4)
+    assert row["paired_after_over_before"] == 1.0
