@@ -10,6 +10,7 @@ two runs of a round ran minutes apart, so the ratio within a round carries less 
 machine's drift than the ratio of the two sides' medians.
 
     python bench/ab.py BEFORE AFTER --bench rl_env_speed.py [--runs 3] [--out DIR] [-- ARGS...]
+    python bench/ab.py BEFORE AFTER --bench rl_env_speed.py --from DIR   # the summary of kept lines
 
 Both clones use this checkout's installed packages (``PYTHONPATH`` points at the clone). The
 raw lines go to ``DIR/<before|after>-<bench>-<round>.json``; the summary is the last line printed.
@@ -86,11 +87,33 @@ def main() -> None:
     parser.add_argument("--bench", required=True, help="a script in bench/, e.g. rl_env_speed.py")
     parser.add_argument("--runs", type=int, default=3, help="rounds, each running both sides (default 3)")
     parser.add_argument("--out", type=Path, help="folder for the raw lines (default: none kept)")
+    parser.add_argument("--from", dest="kept", type=Path, help="run nothing: summarise the raw lines in this folder")
     argv = sys.argv[1:]
     split = argv.index("--") if "--" in argv else len(argv)
     opts, args = parser.parse_args(argv[:split]), argv[split + 1:]  # after --: the bench's own arguments
     if opts.runs < 1:
         parser.error("--runs must be >= 1")
+    lines = kept_lines(opts.kept, opts.bench) if opts.kept else run_rounds(opts, args)
+    refs = [x.get("machine_ref_rt") for side in lines.values() for x in side if x.get("machine_ref_rt")]
+    print(json.dumps({"bench": opts.bench, "before": opts.before, "after": opts.after, "runs": len(lines["before"]),
+                      "figures": summary(lines["before"], lines["after"]),
+                      "machine_ref_rt": statistics.median(refs) if refs else None}))
+
+
+def kept_lines(folder: Path, bench: str) -> dict[str, list[dict]]:
+    """The raw lines an earlier run kept in ``folder``, each side in round order."""
+    stem = Path(bench).stem
+    lines: dict[str, list[dict]] = {}
+    for side in ("before", "after"):
+        files = sorted(folder.glob(f"{side}-{stem}-*.json"), key=lambda f: int(f.stem.rsplit("-", 1)[1]))
+        lines[side] = [last_json(f.read_text()) for f in files]
+    if not lines["before"] or len(lines["before"]) != len(lines["after"]):
+        raise SystemExit(f"{folder}: {len(lines['before'])} before and {len(lines['after'])} after lines of {stem}")
+    return lines
+
+
+def run_rounds(opts: argparse.Namespace, args: list[str]) -> dict[str, list[dict]]:
+    """``opts.runs`` rounds of both sides, the side that goes first alternating."""
     with tempfile.TemporaryDirectory() as tmp:
         trees = {"before": clone(opts.before, Path(tmp)), "after": clone(opts.after, Path(tmp))}
         lines: dict[str, list[dict]] = {"before": [], "after": []}
@@ -104,10 +127,7 @@ def main() -> None:
                     opts.out.mkdir(parents=True, exist_ok=True)
                     stem = Path(opts.bench).stem
                     (opts.out / f"{side}-{stem}-{i + 1}.json").write_text(json.dumps(line) + "\n")
-    refs = [x.get("machine_ref_rt") for side in lines.values() for x in side if x.get("machine_ref_rt")]
-    print(json.dumps({"bench": opts.bench, "before": opts.before, "after": opts.after, "runs": opts.runs,
-                      "figures": summary(lines["before"], lines["after"]),
-                      "machine_ref_rt": statistics.median(refs) if refs else None}))
+    return lines
 
 
 if __name__ == "__main__":

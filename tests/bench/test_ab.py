@@ -34,3 +34,16 @@ def test_the_paired_ratio_is_the_median_of_the_rounds_own_ratios(ab) -> None:
     assert row["before"] == 1.5 and row["after"] == 1.4
     assert row["after_over_before"] == pytest.approx(0.9333, abs=1e-4)
     assert row["paired_after_over_before"] == 1.0
+
+
+def test_kept_lines_come_back_in_round_order_and_a_missing_side_is_refused(ab, tmp_path: Path) -> None:
+    for side, values in (("before", (1.0, 2.0, 3.0)), ("after", (1.1, 2.1, 3.1))):
+        for i, v in enumerate(values, start=1):
+            (tmp_path / f"{side}-experiment_speed-{i}.json").write_text(f'progress\n{{"cpu_ms_per_step": {v}}}\n')
+    (tmp_path / "after-experiment_speed-10.json").write_text('{"cpu_ms_per_step": 9.0}\n')
+    with pytest.raises(SystemExit, match="3 before and 4 after"):
+        ab.kept_lines(tmp_path, "experiment_speed.py")
+    (tmp_path / "before-experiment_speed-10.json").write_text('{"cpu_ms_per_step": 8.0}\n')
+    lines = ab.kept_lines(tmp_path, "experiment_speed.py")
+    assert [x["cpu_ms_per_step"] for x in lines["before"]] == [1.0, 2.0, 3.0, 8.0]
+    assert [x["cpu_ms_per_step"] for x in lines["after"]] == [1.1, 2.1, 3.1, 9.0]
