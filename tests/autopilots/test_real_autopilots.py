@@ -83,6 +83,14 @@ LANDING_MODES = {"px4": {"LAND"}, "ardupilot": {"LAND"}}  # pymavlink's names of
 IN_FLIGHT_S = 3.0  # of the vehicle's time after the take-off: on the way to the start point
 T = TypeVar("T")
 
+# How long, of the vehicle's time, a run's end is watched for the disarm. The companion ends a run
+# in LAND; the autopilot lands and disarms in its own time. PX4 SIH once took 96 s: the expert's
+# last episode timed out 6.7 m up by its estimate, and the landing was detected 96 s later, with
+# the estimate still reading 2.4 m up and not moving (bench/results/ci-fresh-2026-12-06-15-failed.txt,
+# where 40 s were watched; the next run's own telemetry log showed the rest). Watching ends at the
+# disarm, so a longer window costs only when the landing is slow.
+LANDING_WATCH_S = 180.0
+
 
 @dataclass
 class Watched:
@@ -220,7 +228,7 @@ def run_scenario(scenario: Scenario, ap: RunningAutopilot, config: Path, work: P
         expert_dir = work / "expert"
         scenario.expert = _timed(timing, "expert", lambda: _fly_expert(ap, config, expert_dir))
         scenario.expert_records = _records(expert_dir)
-        scenario.after_expert = _timed(timing, "after_expert", lambda: watch_vehicle(ap.connection, 40.0))
+        scenario.after_expert = _timed(timing, "after_expert", lambda: watch_vehicle(ap.connection, LANDING_WATCH_S))
         checkpoints = sorted((expert_dir / "checkpoints").glob("episode_*.npz"))
         if not checkpoints:
             scenario.error = "the expert run wrote no checkpoint"
@@ -228,7 +236,7 @@ def run_scenario(scenario: Scenario, ap: RunningAutopilot, config: Path, work: P
         eval_dir = work / "eval"
         scenario.interrupted = _timed(timing, "eval", lambda: _eval_interrupted(ap, config, checkpoints[-1], eval_dir))
         scenario.eval_records = _records(eval_dir)
-        scenario.after_interrupt = _timed(timing, "after_interrupt", lambda: watch_vehicle(ap.connection, 90.0))
+        scenario.after_interrupt = _timed(timing, "after_interrupt", lambda: watch_vehicle(ap.connection, LANDING_WATCH_S))
         _kept(scenario, work)
     except Exception as exc:  # reported by the tests, with the autopilot's log
         scenario.error = repr(exc)
