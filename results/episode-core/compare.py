@@ -11,8 +11,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 COMMITTED = HERE.parents[0] / "precland" / "compare" / "episodes"
-RUNS = {"precland-px4": ("precland-px4-level-0.2.jsonl", ("at-2ac8ca0", "at-970ca43", "at-563051c", "at-ef1d8b2", "at-dab0327", "at-b52d975")),
-        "expert": ("expert-level-0.2.jsonl", ("at-970ca43", "at-563051c", "at-ef1d8b2", "at-dab0327", "at-b52d975"))}
+RUNS = {"precland-px4": ("precland-px4-level-0.2.jsonl", ("at-2ac8ca0", "at-970ca43", "at-563051c", "at-ef1d8b2", "at-dab0327", "at-b52d975", "at-af67ec8")),
+        "expert": ("expert-level-0.2.jsonl", ("at-970ca43", "at-563051c", "at-ef1d8b2", "at-dab0327", "at-b52d975", "at-af67ec8"))}
 
 
 def records(path: Path, n: int | None = None) -> list[dict]:
