@@ -218,18 +218,30 @@ class Script:
                 return float(msg.param_value)
         return None
 
+    def _hello(self, errors: list[str]) -> str | None:
+        """Wait for the vehicle's HEARTBEAT: its autopilot's name (``PX4``, ``ARDUPILOTMEGA``), or
+        None with the reason added to ``errors``."""
+        hb = self.mav.wait_heartbeat(timeout=60)
+        if hb is None:
+            errors.append("no HEARTBEAT")
+            return None
+        return str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
+
+    def _stream_rates(self, rates: Iterable[tuple[str, float]]) -> None:
+        """Ask for each message (its name) at its rate in Hz."""
+        for message, hz in rates:
+            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+
     # ----- the script -------------------------------------------------------------------------
     def run(self, armable_timeout_s: float = 120.0) -> Outcome:
         out = self.out
-        hb = self.mav.wait_heartbeat(timeout=60)
-        if hb is None:
-            out.errors.append("no HEARTBEAT")
+        autopilot = self._hello(out.errors)
+        if autopilot is None:
             return out
-        out.autopilot = str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
+        out.autopilot = autopilot
         takeoff_mode, offboard_mode = MODES.get(out.autopilot, ("", ""))
         # ATTITUDE: a stamped message from the start (ArduCopter sends no position before its EKF has one)
-        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("HOME_POSITION", 1), ("ATTITUDE", 10)):
-            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        self._stream_rates((("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("HOME_POSITION", 1), ("ATTITUDE", 10)))
         names = ("LNDMC_Z_VEL_MAX",) if out.autopilot == "PX4" else ("LAND_SPEED", "LAND_SPEED_HIGH")
         out.land_param = {n: self._param(n) for n in names}
         self._arm(takeoff_mode, armable_timeout_s)
@@ -412,6 +424,9 @@ AP_PRECLAND_PARAMS = ("PLND_ENABLED", "PLND_TYPE", "PLND_EST_TYPE", "PLND_LAG", 
                       "PLND_RET_MAX", "PLND_TIMEOUT", "PLND_ALT_MIN", "PLND_ALT_MAX", "PLND_OPTIONS", "PLND_ORIENT")
 
 
+PRECLAND_RATES = (("LOCAL_POSITION_NED", 20.0), ("EXTENDED_SYS_STATE", 5.0), ("ATTITUDE", 20.0))  # message, Hz
+
+
 @dataclass
 class PrecLandOutcome:
     """What a vehicle did with LANDING_TARGET toward a fixed point and a precision landing request."""
@@ -492,14 +507,12 @@ class PrecLandScript(Script):
 
     def run_precland(self, armable_timeout_s: float = 120.0) -> PrecLandOutcome:
         pr = self.pr
-        hb = self.mav.wait_heartbeat(timeout=60)
-        if hb is None:
-            pr.errors.append("no HEARTBEAT")
+        autopilot = self._hello(pr.errors)
+        if autopilot is None:
             return pr
-        pr.autopilot = str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
+        pr.autopilot = autopilot
         px4 = pr.autopilot == "PX4"
-        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 20)):
-            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        self._stream_rates(PRECLAND_RATES)
         if not px4:
             self._plnd_on_and_reboot()
         pr.params = {n: self._param(n) for n in (PX4_PRECLAND_PARAMS if px4 else AP_PRECLAND_PARAMS)}
@@ -552,8 +565,7 @@ class PrecLandScript(Script):
         self.pr.reboot_ack = self._command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, [1.0])
         self._pump(3.0, wall=True)  # its process restarting, on the wall clock: then no HEARTBEAT of before it is read
         self.mav.wait_heartbeat(timeout=60)
-        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 20)):
-            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        self._stream_rates(PRECLAND_RATES)
 
     def _precland_mode(self, px4: bool) -> str:
         """PX4: DO_SET_MODE AUTO (4) / PRECLAND (9), a mode pymavlink has no name for; ArduPilot: LAND."""

@@ -63,12 +63,9 @@ class GapScript(Script):
 
     def fly_gap(self, gap_s: float, armable_timeout_s: float = 120.0) -> GapOutcome:
         out = GapOutcome(gap_s)
-        if self.mav.wait_heartbeat(timeout=60) is None:
-            out.errors.append("no HEARTBEAT")
+        if self._hello(out.errors) is None:
             return out
-        for message, hz in (("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 10),
-                            ("HEARTBEAT", HEARTBEAT_HZ)):
-            self._command(M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(getattr(M, f"MAVLINK_MSG_ID_{message}")), 1e6 / hz])
+        self._stream_rates((("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("ATTITUDE", 10), ("HEARTBEAT", HEARTBEAT_HZ)))
         if self.loss_t_s is not None:
             self.mav.mav.param_set_send(self.mav.target_system, 1, b"COM_OF_LOSS_T", self.loss_t_s, M.MAV_PARAM_TYPE_REAL32)
         out.loss_t_s = self._param("COM_OF_LOSS_T")
