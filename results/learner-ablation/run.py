@@ -12,6 +12,8 @@ resumable (`col experiment` resumes a results folder; a finished arm is skipped)
 and 3, the arms of ROUND_SWITCHES[2], everything under round-2/ (here and in runs/). ``--round 3``
 runs the combination (amendment 3): the ``colplus`` condition (DART with the weighting) on every
 cell of the first two rounds, replicates 0-3, under round-3/, analysed against both rounds' arms.
+``--round 4`` runs CoL+ with a 5-member ensemble (amendment 4) on the same 96 cells, under
+round-4/, analysed against round 3's CoL+.
 
 An arm is SET-SWITCH: SET scripted (P1-P4, the paper's level, configs/paper.toml) or human-like
 (H01-H08, configs/human-like.toml); SWITCH base (every switch off: the paper's CoL) or one switch
@@ -44,17 +46,20 @@ SWITCHES: dict[str, dict[str, object]] = {
     "holdout": {"holdout_stop": True},
     "weighting": {"intervention_weight": 2.0, "takeover_steps": 10, "takeover_weight": 4.0},
     "dart": {"demo_noise_std": 0.2},  # added in PLAN.md's amendment 1, before any dart run
+    "ensemble": {"ensemble_members": 5},  # amendment 4: on top of CoL+, before any ensemble run
 }
 """Each switch's settings, fixed in PLAN.md before the runs (the rest at their defaults)."""
 EXPERIMENT = {"conditions": '["col"]', "interactions": "[8, 20]", "seeds": "[0, 1]",
               "eval_runs": "50", "eval_seed": "600000"}
-ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]", 3: "[0, 1, 2, 3]"}
+ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]", 3: "[0, 1, 2, 3]", 4: "[0, 1, 2, 3]"}
 """Each round's replicates: the second (PLAN.md, amendment 2) on cells the first never saw."""
-ROUND_SWITCHES = {1: list(SWITCHES), 2: ["base", "mirror", "weighting", "dart"], 3: ["colplus"]}
+ROUND_SWITCHES = {1: ["base", "mirror", "holdout", "weighting", "dart"], 2: ["base", "mirror", "weighting", "dart"],
+                  3: ["colplus"], 4: ["ensemble"]}
 """Each round's arms: the second retries the switches the first did not show, and DART again; the
 third is the combination, the ``colplus`` condition (its switches come with the condition,
-companion/learning/col_plus.py, so its arm adds no learner keys)."""
-ROUND_CONDITIONS = {1: '["col"]', 2: '["col"]', 3: '["colplus"]'}
+companion/learning/col_plus.py, so its arm adds no learner keys); the fourth (amendment 4) is CoL+
+with a 5-member ensemble, against the third round's CoL+ on the same cells."""
+ROUND_CONDITIONS = {1: '["col"]', 2: '["col"]', 3: '["colplus"]', 4: '["colplus"]'}
 COMBINATION = "colplus"
 COMBINED_WITH = ("base", "dart", "weighting")
 """What the combination is compared with (PLAN.md, amendment 3), each pooled over rounds 1 and 2."""
@@ -238,11 +243,42 @@ def analyse_combination(rnd: Round) -> None:
     print("\n".join(rows))
 
 
+def analyse_on_colplus(rnd: Round) -> None:
+    """Amendment 4: each of the round's switches on top of CoL+ against the third round's CoL+ on
+    the same 96 cells (the primary, both sets pooled), by set and count, and the regressions."""
+    plus = pooled_rates([Round(3).here], COMBINATION)
+    summary: dict[str, object] = {}
+    rows = ["| switch on CoL+ | set | interactions | cells | CoL+ % | with the switch % | difference, points [95 % CI] |",
+            "| --- | --- | --- | ---: | ---: | ---: | --- |"]
+    for switch in ROUND_SWITCHES[rnd.number]:
+        other = pooled_rates([rnd.here], switch)
+        for set_name in (*SETS, None):
+            for n in (8, 20, None):
+                res = paired(plus, other, lambda k, s=set_name, n=n: (s is None or k[0] == s) and (n is None or k[2] == n))
+                summary[f"{switch}/{set_name or 'both'}/{n or 'both'}"] = res
+                bold = "**" if set_name is None and n is None else ""
+                rows.append(f"| {bold}{switch}{bold} | {set_name or 'both'} | {n or '8 and 20'} | {res['cells']} | "
+                            f"{res['base_pct']} | {res['switch_pct']} | {bold}{res['mean_diff_pts']:+} {res['ci95']}{bold} |")
+        for set_name in SETS:
+            summary[f"{switch}/{set_name}/regressions"] = {
+                "colplus": regressions({k[1:]: v for k, v in plus.items() if k[0] == set_name}),
+                "switch": regressions({k[1:]: v for k, v in other.items() if k[0] == set_name})}
+        primary = summary[f"{switch}/both/both"]
+        supported = primary["ci95"] is not None and primary["ci95"][0] > 0  # type: ignore[index]
+        summary[f"{switch}/decision"] = "supported: on top of CoL+" if supported else "not shown: CoL+ stays as it is"
+        rows.append(f"\nDecision (PLAN.md, amendment 4), {switch}: {summary[f'{switch}/decision']}.")
+    (rnd.here / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (rnd.here / "table.md").write_text("\n".join(rows) + "\n")
+    print("\n".join(rows))
+
+
 def analyse(rnd: Round) -> None:
     """As PLAN.md fixes it: per switch against the round's base, by set and count, and pooled
     over both sets (the primary); a later round also pooled with the first (secondary)."""
     if COMBINATION in ROUND_SWITCHES[rnd.number]:
         return analyse_combination(rnd)
+    if ROUND_CONDITIONS[rnd.number] == f'["{COMBINATION}"]':
+        return analyse_on_colplus(rnd)
     summary: dict[str, object] = {}
     rows = ["| switch | set | interactions | cells | CoL % | switch % | difference, points [95 % CI] |",
             "| --- | --- | --- | ---: | ---: | ---: | --- |"]
