@@ -101,8 +101,9 @@ class Script:
     ``texts_from``, on a second link)."""
 
     def __init__(self, connection: str, slow_s: float = 25.0, fast_s: float = 20.0,
-                 texts_from: str | None = None) -> None:
+                 texts_from: str | None = None, hello_timeout_s: float = 60.0) -> None:
         self.mav = mavutil.mavlink_connection(connection, source_system=246, source_component=191)
+        self.hello_timeout_s = hello_timeout_s
         self.listener = TextListener(texts_from) if texts_from else None
         self._unheard: deque[str] = deque(maxlen=200)
         self.slow_s, self.fast_s = slow_s, fast_s
@@ -220,10 +221,11 @@ class Script:
 
     def _hello(self, errors: list[str]) -> str | None:
         """Wait for the vehicle's HEARTBEAT: its autopilot's name (``PX4``, ``ARDUPILOTMEGA``), or
-        None with the reason added to ``errors``."""
-        hb = self.mav.wait_heartbeat(timeout=60)
+        None with the reason added to ``errors`` and the links closed (the script ends there)."""
+        hb = self.mav.wait_heartbeat(timeout=self.hello_timeout_s)
         if hb is None:
             errors.append("no HEARTBEAT")
+            self._close()
             return None
         return str(M.enums["MAV_AUTOPILOT"][hb.autopilot].name).removeprefix("MAV_AUTOPILOT_")
 
@@ -299,10 +301,14 @@ class Script:
                 self._pump(2.0)
             else:
                 self._command(M.MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, NAN, NAN, NAN, NAN])
+        self._close()
+        return out
+
+    def _close(self) -> None:
+        """Close the vehicle's link and the second link's listener."""
         self.mav.close()
         if self.listener is not None:
             self.listener.close()
-        return out
 
 
 def _rounded(value: float | None) -> float | None:
