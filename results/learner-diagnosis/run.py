@@ -5,7 +5,7 @@ The 24 policies: CoL@20 and Demo@20 of P1-P4, replicate 0, from the pinned paper
 (results/paper-grid), then of H01-H08, replicate 0, from the human-like grid (results/human-like).
 Steps, from the repository's root, each resumable (a policy whose output exists is skipped):
 
-    python results/learner-diagnosis/run.py code                # the code the diagnosis runs: a clean export
+    python results/learner-diagnosis/run.py code [--commit C]   # the code the diagnosis runs: a clean export
     python results/learner-diagnosis/run.py verify [KEY ...]    # retrain: col experiment --verify --keep
     python results/learner-diagnosis/run.py fly [KEY ...]       # endpoints 1-3 on the identical reruns
     python results/learner-diagnosis/run.py teacher-check [KEY ...]  # the shadow teacher replays its own labels
@@ -76,15 +76,16 @@ def chosen(keys: list[str]) -> list[tuple[str, str]]:
     return [(grid_of(k), k) for k in keys] if keys else list(POLICIES)
 
 
-def export_code() -> None:
-    """runs/learner-diagnosis/code/: the repository at HEAD as committed (``git archive``), so the
-    diagnosis runs one commit's library while the working tree changes."""
+def export_code(at: str = "HEAD") -> None:
+    """runs/learner-diagnosis/code/: the repository at ``at`` as committed (``git archive``), so the
+    diagnosis runs one commit's library while the working tree changes (another machine continues
+    with the commit RUN.md names, 1a59533)."""
     if (CODE / "COMMIT").exists():
         print(f"{_rel(CODE)} holds {commit()} already")
         return
     shutil.rmtree(CODE, ignore_errors=True)
     CODE.mkdir(parents=True)
-    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    head = subprocess.run(["git", "rev-parse", at], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
     archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(CODE)], input=archive, check=True)
     (CODE / "COMMIT").write_text(head + "\n")
@@ -116,10 +117,11 @@ def kept(grid: str, key: str) -> Path:
 
 def verify(keys: list[str]) -> None:
     """``col experiment --verify results/<grid> --trial KEY --keep runs/learner-diagnosis/<grid>/KEY``,
-    one policy at a time; its verdict goes to verify.jsonl."""
+    one policy at a time; its verdict goes to verify.jsonl. A policy verified before whose kept
+    folder is gone (another machine: runs/ is not committed) is rerun, its new verdict appended."""
     done = verdicts()
     for grid, key in chosen(keys):
-        if key in done:
+        if key in done and kept(grid, key).exists():
             continue
         keep = RUNS / grid / key
         shutil.rmtree(keep, ignore_errors=True)  # an interrupted rerun starts over
@@ -914,9 +916,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("step", choices=("code", "verify", "fly", "teacher-check", "fit", "summarise"))
     parser.add_argument("keys", nargs="*", help="policies (e.g. P1-col-20-s0); default: all 24")
+    parser.add_argument("--commit", default="HEAD", help="step code: the commit to export (default HEAD)")
     args = parser.parse_args()
     if args.step == "code":
-        export_code()
+        export_code(args.commit)
         return
     if not (CODE / "COMMIT").exists():
         raise SystemExit(f"run the step 'code' first: {_rel(CODE)} is missing")
