@@ -187,6 +187,11 @@ class LearnerConfig(Section):
         "Gaussian noise of this std (stick units), seeded by the learner's seed and the episode; the sample "
         "keeps the person's command; 0 = none (the paper)"
     )
+    huber_delta: float = Field(
+        0.0, ge=0, le=2, description="Huber loss: each action error's gradient capped at this many stick units "
+        "(a lapse's stale command pulls no harder than this); the stopping rule still reads the MSE; 0 = the "
+        "paper's MSE"
+    )
     holdout_stop: bool = Field(
         False, description="hold out holdout_share of the samples (never trained on); between episodes "
         "(budgeted mode) train until their loss stops improving, at most between_episode_updates, and "

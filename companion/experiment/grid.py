@@ -227,6 +227,7 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("learner", "takeover_weight"): 1.0,
     ("learner", "holdout_stop"): False,
     ("learner", "demo_noise_std"): 0.0,
+    ("learner", "huber_delta"): 0.0,
     ("learner", "holdout_share"): 0.1,
     ("learner", "holdout_block_samples"): 10,
     ("learner", "holdout_check_every_updates"): 100,

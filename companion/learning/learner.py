@@ -100,7 +100,15 @@ class Learner:
     @classmethod
     def _make_trainer(cls, config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
                       initial: PolicySnapshot | None) -> MlpTrainer | EnsembleTrainer:
-        """One network (the paper's), or ``ensemble_members`` of them trained side by side."""
+        """One network (the paper's), or ``ensemble_members`` of them trained side by side; the
+        loss's gradient is Huber's where ``huber_delta`` is set."""
+        trainer = cls._make_network_trainer(config, obs_dim, normalisation, initial)
+        trainer.huber_delta = config.huber_delta
+        return trainer
+
+    @classmethod
+    def _make_network_trainer(cls, config: LearnerConfig, obs_dim: int, normalisation: Normalisation | None,
+                              initial: PolicySnapshot | None) -> MlpTrainer | EnsembleTrainer:
         lr, batch = config.learning_rate, config.batch_size
         k = config.ensemble_members
         if k == 1:

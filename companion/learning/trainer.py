@@ -127,6 +127,10 @@ class TrainerStep(RmsPropState):
     _y: np.ndarray
     _diff: np.ndarray
     _norm: np.float32
+    huber_delta: float = 0.0
+    """0: the squared error's gradient (the paper's MSE). > 0: Huber's, each element's error capped
+    at this many stick units in the gradient, so a few far-off labels (a person's lapse, a slip of
+    the hand) pull the fit no harder than an error of delta; below delta it is the MSE's."""
 
     def _residual(self, obs_batch: np.ndarray, target_batch: np.ndarray,
                   row_weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -146,6 +150,8 @@ class TrainerStep(RmsPropState):
         """Backpropagate the residual of :meth:`_residual` into ``_gA`` and take one RMSprop step."""
         xa, xv, dz, mask, zero = self._xa, self._xv, self._dz, self._mask, F32(0)
         last = len(self._A) - 1
+        if self.huber_delta > 0:
+            self._cap_residual(diff, root)
         if root is not None:
             np.multiply(diff, root, out=diff)  # w (y - t): the weighted loss's gradient
         np.multiply(y, y, out=mask[last])  # tanh' = 1 - y^2
@@ -160,6 +166,16 @@ class TrainerStep(RmsPropState):
                 np.multiply(dz[k - 1], mask[k - 1], out=dz[k - 1])
         self._rmsprop()
         self.updates += 1
+
+    def _cap_residual(self, diff: np.ndarray, root: np.ndarray | None) -> None:
+        """``diff`` (``sqrt(w) (y - t)``, or ``y - t``) with each ``y - t`` capped at ``huber_delta``:
+        the Huber loss's gradient, weighted as before."""
+        delta = F32(self.huber_delta)
+        if root is not None:
+            np.divide(diff, root, out=diff)
+        np.clip(diff, -delta, delta, out=diff)
+        if root is not None:
+            np.multiply(diff, root, out=diff)
 
 
 class MlpTrainer(TrainerStep):
@@ -209,8 +225,9 @@ class MlpTrainer(TrainerStep):
         """One RMSprop update on ``(obs, target)`` rows; returns the MSE before the update.
 
         ``row_weights`` (one per row; None: all equal) make it the weighted mean of the rows'
-        squared errors (:func:`root_weights`). Raises FloatingPointError on a non-finite loss,
-        leaving weights and state untouched.
+        squared errors (:func:`root_weights`). With ``huber_delta`` the update follows Huber's
+        gradient; the loss returned is still the (weighted) MSE, so ``loss_threshold`` keeps its
+        meaning. Raises FloatingPointError on a non-finite loss, leaving weights and state untouched.
         """
         if obs_batch.shape[0] != self._raw.shape[0]:
             self._alloc(obs_batch.shape[0])
