@@ -13,7 +13,8 @@ and 3, the arms of ROUND_SWITCHES[2], everything under round-2/ (here and in run
 runs the combination (amendment 3): the ``colplus`` condition (DART with the weighting) on every
 cell of the first two rounds, replicates 0-3, under round-3/, analysed against both rounds' arms.
 ``--round 4`` runs CoL+ with a 5-member ensemble (amendment 4) on the same 96 cells, under
-round-4/, analysed against round 3's CoL+.
+round-4/, analysed against round 3's CoL+; ``--round 5`` CoL+ with the Huber loss (amendment 5),
+under round-5/, the same way.
 
 An arm is SET-SWITCH: SET scripted (P1-P4, the paper's level, configs/paper.toml) or human-like
 (H01-H08, configs/human-like.toml); SWITCH base (every switch off: the paper's CoL) or one switch
@@ -47,19 +48,21 @@ SWITCHES: dict[str, dict[str, object]] = {
     "weighting": {"intervention_weight": 2.0, "takeover_steps": 10, "takeover_weight": 4.0},
     "dart": {"demo_noise_std": 0.2},  # added in PLAN.md's amendment 1, before any dart run
     "ensemble": {"ensemble_members": 5},  # amendment 4: on top of CoL+, before any ensemble run
+    "huber": {"huber_delta": 0.1},  # amendment 5: on top of CoL+, before any huber run
 }
 """Each switch's settings, fixed in PLAN.md before the runs (the rest at their defaults)."""
 EXPERIMENT = {"conditions": '["col"]', "interactions": "[8, 20]", "seeds": "[0, 1]",
               "eval_runs": "50", "eval_seed": "600000"}
-ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]", 3: "[0, 1, 2, 3]", 4: "[0, 1, 2, 3]"}
+ROUND_SEEDS = {1: "[0, 1]", 2: "[2, 3]", 3: "[0, 1, 2, 3]", 4: "[0, 1, 2, 3]", 5: "[0, 1, 2, 3]"}
 """Each round's replicates: the second (PLAN.md, amendment 2) on cells the first never saw."""
 ROUND_SWITCHES = {1: ["base", "mirror", "holdout", "weighting", "dart"], 2: ["base", "mirror", "weighting", "dart"],
-                  3: ["colplus"], 4: ["ensemble"]}
+                  3: ["colplus"], 4: ["ensemble"], 5: ["huber"]}
 """Each round's arms: the second retries the switches the first did not show, and DART again; the
 third is the combination, the ``colplus`` condition (its switches come with the condition,
 companion/learning/col_plus.py, so its arm adds no learner keys); the fourth (amendment 4) is CoL+
-with a 5-member ensemble, against the third round's CoL+ on the same cells."""
-ROUND_CONDITIONS = {1: '["col"]', 2: '["col"]', 3: '["colplus"]', 4: '["colplus"]'}
+with a 5-member ensemble, against the third round's CoL+ on the same cells; the fifth
+(amendment 5) CoL+ with the Huber loss, the same way."""
+ROUND_CONDITIONS = {1: '["col"]', 2: '["col"]', 3: '["colplus"]', 4: '["colplus"]', 5: '["colplus"]'}
 COMBINATION = "colplus"
 COMBINED_WITH = ("base", "dart", "weighting")
 """What the combination is compared with (PLAN.md, amendment 3), each pooled over rounds 1 and 2."""
