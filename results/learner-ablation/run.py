@@ -266,10 +266,11 @@ def analyse_on_colplus(rnd: Round) -> None:
             summary[f"{switch}/{set_name}/regressions"] = {
                 "colplus": regressions({k[1:]: v for k, v in plus.items() if k[0] == set_name}),
                 "switch": regressions({k[1:]: v for k, v in other.items() if k[0] == set_name})}
-        primary = summary[f"{switch}/both/both"]
-        supported = primary["ci95"] is not None and primary["ci95"][0] > 0  # type: ignore[index]
-        summary[f"{switch}/decision"] = "supported: on top of CoL+" if supported else "not shown: CoL+ stays as it is"
-        rows.append(f"\nDecision (PLAN.md, amendment 4), {switch}: {summary[f'{switch}/decision']}.")
+        ci = summary[f"{switch}/both/both"]["ci95"]  # type: ignore[index]
+        summary[f"{switch}/decision"] = ("supported: on top of CoL+" if ci is not None and ci[0] > 0 else
+                                         "harmful: CoL+ stays as it is" if ci is not None and ci[1] < 0 else
+                                         "not shown: CoL+ stays as it is")
+        rows.append(f"\nDecision (PLAN.md, amendment {rnd.number}), {switch}: {summary[f'{switch}/decision']}.")
     (rnd.here / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     (rnd.here / "table.md").write_text("\n".join(rows) + "\n")
     print("\n".join(rows))
