@@ -169,13 +169,9 @@ class TrainerStep(RmsPropState):
 
     def _cap_residual(self, diff: np.ndarray, root: np.ndarray | None) -> None:
         """``diff`` (``sqrt(w) (y - t)``, or ``y - t``) with each ``y - t`` capped at ``huber_delta``:
-        the Huber loss's gradient, weighted as before."""
-        delta = F32(self.huber_delta)
-        if root is not None:
-            np.divide(diff, root, out=diff)
-        np.clip(diff, -delta, delta, out=diff)
-        if root is not None:
-            np.multiply(diff, root, out=diff)
+        the Huber loss's gradient, weighted as before (``sqrt(w) > 0`` scales the cap alike)."""
+        bound = F32(self.huber_delta) if root is None else root * F32(self.huber_delta)
+        np.clip(diff, -bound, bound, out=diff)
 
 
 class MlpTrainer(TrainerStep):
