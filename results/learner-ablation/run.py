@@ -30,7 +30,6 @@ import argparse
 import json
 import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -120,17 +119,10 @@ def configs(rnd: Round) -> None:
 def code(rnd: Round, commit: str = "HEAD") -> None:
     """The round's library: the repository at ``commit`` as committed (a later session continues
     with the commit the round's first arms ran at, RUN.md)."""
-    if (rnd.code / "COMMIT").exists():
-        print(f"{rnd.rel(rnd.code)} holds {(rnd.code / 'COMMIT').read_text().strip()} already")
-        return
-    shutil.rmtree(rnd.code, ignore_errors=True)
-    rnd.code.mkdir(parents=True)
-    head = subprocess.run(["git", "rev-parse", commit], cwd=ROOT, capture_output=True, text=True,
-                          check=True).stdout.strip()
-    archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(rnd.code)], input=archive, check=True)
-    (rnd.code / "COMMIT").write_text(head + "\n")
-    print(f"{rnd.rel(rnd.code)}: {head}")
+    from colcommon.code_export import export_commit
+
+    head, made = export_commit(ROOT, rnd.code, commit)
+    print(f"{rnd.rel(rnd.code)}: {head}" if made else f"{rnd.rel(rnd.code)} holds {head} already")
 
 
 def run(rnd: Round, arms: list[str]) -> None:

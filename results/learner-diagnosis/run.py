@@ -80,16 +80,10 @@ def export_code(at: str = "HEAD") -> None:
     """runs/learner-diagnosis/code/: the repository at ``at`` as committed (``git archive``), so the
     diagnosis runs one commit's library while the working tree changes (another machine continues
     with the commit RUN.md names, 1a59533)."""
-    if (CODE / "COMMIT").exists():
-        print(f"{_rel(CODE)} holds {commit()} already")
-        return
-    shutil.rmtree(CODE, ignore_errors=True)
-    CODE.mkdir(parents=True)
-    head = subprocess.run(["git", "rev-parse", at], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-    archive = subprocess.run(["git", "archive", head], cwd=ROOT, capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(CODE)], input=archive, check=True)
-    (CODE / "COMMIT").write_text(head + "\n")
-    print(f"{_rel(CODE)}: {head}")
+    from colcommon.code_export import export_commit  # the step runs from the repository, not an export
+
+    head, made = export_commit(ROOT, CODE, at)
+    print(f"{_rel(CODE)}: {head}" if made else f"{_rel(CODE)} holds {head[:7]} already")
 
 
 def commit() -> str:
