@@ -239,7 +239,7 @@ def analyse_combination(rnd: Round) -> None:
 
 
 def analyse_on_colplus(rnd: Round) -> None:
-    """Amendment 4: each of the round's switches on top of CoL+ against the third round's CoL+ on
+    """Amendments 4 and 5: each of the round's switches on top of CoL+ against the third round's CoL+ on
     the same 96 cells (the primary, both sets pooled), by set and count, and the regressions."""
     plus = pooled_rates([Round(3).here], COMBINATION)
     summary: dict[str, object] = {}
