@@ -499,9 +499,9 @@ def precland_camera(config_path: Path | None) -> CameraConfig:
     from sitl.config import load_sitl_config
 
     camera = load_sitl_config(config_path).camera
-    if camera.pad_marker != "aruco":
-        raise ConfigError('--pilot precland needs the ArUco board on the pad: set [sitl.camera] pad_marker = "aruco" '
-                          "in the --config file (configs/precland.toml does); the colour pad gives no pose")
+    if camera.pad_marker == "none":
+        raise ConfigError('--pilot precland needs an ArUco board on the pad: set [sitl.camera] pad_marker = "aruco" '
+                          '(or "aruco-disc") in the --config file (configs/precland.toml does); the colour pad gives no pose')
     return camera
 
 
@@ -515,7 +515,8 @@ def build_lander(link: VehicleLink, camera: CameraSource | None, config_path: Pa
     from sitl.camera import camera_matrix
 
     camera_cfg = precland_camera(config_path)
-    detector = ArucoPadDetector(camera_matrix(camera_cfg), (camera_cfg.width_px, camera_cfg.height_px))
+    detector = ArucoPadDetector(camera_matrix(camera_cfg), (camera_cfg.width_px, camera_cfg.height_px),
+                                board=camera_cfg.pad_marker)
     return PrecisionLander(link, camera, detector)
 
 

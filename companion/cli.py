@@ -103,7 +103,7 @@ def fly(
     connect: ConnectOpt = None,
     simulator: SimulatorOpt = None,
     camera: Annotated[str | None, typer.Option(help='camera source: "auto" (advertised by the vehicle), "render" (our pad world drawn from the vehicle\'s telemetry), colf://host:port, device index, file, URL, or "none" (test mode: pad never visible)')] = None,
-    pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none; or precland: the autopilot's own precision landing on the companion's LANDING_TARGET (no learning; needs \\[sitl.camera] pad_marker = \"aruco\", e.g. --config configs/precland.toml)")] = "expert",
+    pilot: Annotated[str, typer.Option(help="who holds the sticks: expert (scripted), manual (ground station MANUAL_CONTROL), gamepad, none; or precland: the autopilot's own precision landing on the companion's LANDING_TARGET (no learning; needs an ArUco board, \\[sitl.camera] pad_marker = \"aruco\" or \"aruco-disc\", e.g. --config configs/precland.toml)")] = "expert",
     checkpoint: Annotated[Path | None, typer.Option(help="start from this policy instead of a fresh random one")] = None,
     episodes: Annotated[int | None, typer.Option(min=1, help="number of episodes (default from config)")] = None,
     condition: Annotated[str, typer.Option(help="demo (person flies), int (person intervenes), col (half each), colplus (CoL with the learner switches the ablation supported), ask (half each; the policy holds and asks for help when unsure, needs \\[companion.learner] ensemble_members >= 2), eval (policy alone)")] = "demo",

@@ -123,7 +123,8 @@ def ground_pyramid(seed: int) -> TexturePyramid:
 def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radius_m: float,
                  marker: str = "none") -> TexturePyramid:
     """The roof (long side north-south) with the pad: a magenta disc and a white centre dot, and
-    with ``marker="aruco"`` the ArUco board of sitl/pad_marker.py drawn over it."""
+    with ``marker`` one of sitl/pad_marker.py's ArUco boards (``aruco`` drawn over the pad,
+    ``aruco-disc`` inked into it), or ``none``."""
     rows, cols = int(round(length_m / _ROOF_TEXEL_M)), int(round(width_m / _ROOF_TEXEL_M))
     base = np.empty((rows, cols, 3), np.uint8)
     base[:] = ROOF_BGR
@@ -132,9 +133,9 @@ def roof_pyramid(length_m: float, width_m: float, pad_radius_m: float, dot_radiu
     centre = (int(round((cols - 1) / 2 * 16)), int(round((rows - 1) / 2 * 16)))
     for radius_m, colour in ((pad_radius_m, PAD_BGR), (dot_radius_m, DOT_BGR)):
         cv2.circle(base, centre, int(round(radius_m / _ROOF_TEXEL_M * 16)), colour, -1, cv2.LINE_AA, 4)
-    if marker == "aruco":
-        pad_marker.check_fits(length_m, width_m)
-        pad_marker.draw_board(base)
+    if marker != "none":
+        pad_marker.check_fits(marker, length_m, width_m, pad_radius_m, dot_radius_m)
+        pad_marker.draw_board(marker, base)
     return TexturePyramid(_pyramid(base, _ROOF_LEVELS, wrap=False), _ROOF_TEXEL_M)
 
 

@@ -144,8 +144,11 @@ class CameraConfig(Section):
     )
     texture_seed: int = Field(0, description="seed of the procedural ground texture")
     pad_dot_radius_m: float = Field(0.1, gt=0, description="white centre dot of the pad's marking")
-    pad_marker: Literal["none", "aruco"] = Field(
-        "none", description='aruco: an ArUco board on the pad (sitl/pad_marker.py) for `col fly --pilot precland`; none: the colour pad alone (the experiment\'s)'
+    pad_marker: Literal["none", "aruco", "aruco-disc"] = Field(
+        "none",
+        description="an ArUco board on the pad (sitl/pad_marker.py) for `col fly --pilot precland`: aruco, black on "
+        "white over the pad (it hides the colour disc), or aruco-disc, inked into the dot and the disc so the colour "
+        "detector still sees the plain pad; none: the colour pad alone (the experiment's)",
     )
     ground_downsample: int = Field(
         2, ge=1, le=4, description="render the ground at 1/n resolution, then scale up (vehicle and pad: full)"

@@ -54,14 +54,17 @@ class ArucoPadDetector:
     """Decodes the board's markers and solves for the pad's pose in one grey image."""
 
     def __init__(self, camera_matrix: np.ndarray, image_size_px: tuple[int, int],
-                 distortion: np.ndarray | None = None) -> None:
+                 distortion: np.ndarray | None = None, board: str = "aruco") -> None:
+        """``board``: which of sitl/pad_marker.py's boards the pad carries (``[sitl.camera]
+        pad_marker``); its markers' ids differ from the other's, so the wrong one reads nothing."""
         k = np.asarray(camera_matrix, dtype=float)
         if k.shape != (3, 3) or not np.isfinite(k).all() or k[0, 0] <= 0 or k[1, 1] <= 0:
             raise ValueError(f"camera_matrix must be a finite 3x3 pinhole matrix with positive focal lengths, got {k}")
         self.camera_matrix = k
         self.image_size_px = (int(image_size_px[0]), int(image_size_px[1]))
         self.distortion = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=float)
-        self.board = pad_marker.board()
+        self.board = pad_marker.board(board)
+        self._known = frozenset(m.marker_id for m in pad_marker.markers(board))
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX  # sub-pixel corners: cm at 3 m
         params.minMarkerPerimeterRate = 0.03  # about 10 px around at 320 px: the smallest readable
@@ -98,11 +101,10 @@ class ArucoPadDetector:
         t = tvec.ravel()
         if not (np.isfinite(t).all() and np.isfinite(rotation).all()) or t[2] <= 0:
             return None
-        known = {m.marker_id for m in pad_marker.MARKERS}
         return PadPose(
             position_cam_m=(float(t[0]), float(t[1]), float(t[2])),
             rotation_cam_pad=tuple(tuple(float(v) for v in row) for row in rotation),
-            marker_ids=tuple(sorted(int(i) for i in ids if int(i) in known)),
+            marker_ids=tuple(sorted(int(i) for i in ids if int(i) in self._known)),
             corners_px=tuple((float(u), float(v)) for u, v in img),
             reprojection_px=error,
         )
