@@ -61,7 +61,7 @@ def test_set_key_adds_to_a_table_the_file_has_instead_of_naming_it_twice() -> No
 
 
 def test_every_config_loads_and_has_its_keys(written: dict[Path, str]) -> None:
-    assert len(written) == 5 * len(run.SPEEDS)
+    assert len(written) == 7 * len(run.SPEEDS)
     for path, text in written.items():
         kind = run.kind_of(path)
         speed = path.stem.split("-speed-")[-1] if kind != "policies" else path.stem.removeprefix("policies-")
@@ -71,8 +71,9 @@ def test_every_config_loads_and_has_its_keys(written: dict[Path, str]) -> None:
         assert sitl.world.vehicle_velocity_ne_m_s == (0.0, 0.0) and sitl.world.vehicle_turn_rate_rad_s == 0.0
         assert sitl.world.vehicle_speed_change == 0.0  # straight on at a steady speed
         assert companion.pilot.lead_moving_pad == (kind in ("colour-pad-lead", "policies"))
-        assert sitl.camera.pad_marker == ("aruco" if kind.startswith("precland") else "none")
-        assert sitl.personality.autopilot == ("ardupilot" if kind == "precland-ardupilot" else "px4")
+        board = "aruco-disc" if kind.endswith("-disc") else "aruco" if kind.startswith("precland") else "none"
+        assert sitl.camera.pad_marker == board
+        assert sitl.personality.autopilot == ("ardupilot" if kind.startswith("precland-ardupilot") else "px4")
 
 
 def test_the_policies_grid_is_p1_to_p4_at_20_with_two_replicates(written: dict[Path, str]) -> None:
@@ -108,6 +109,27 @@ def test_fly_commands_name_the_arm_config_and_starts() -> None:
     params = {name: value for name, value, _ in run.ARMS["precland-ardupilot"].params}
     assert params == {"PLND_ENABLED": 1.0, "PLND_TYPE": 1.0, "PLND_OPTIONS": 1.0}  # bit 0: the moving target
     assert not any(p.startswith("/") for p in cmd)
+    disc = run.fly_command("precland-ardupilot-disc", "1.0", run.DEFAULT_RUNS / "x", 2, ext)
+    assert "results/moving-pad/sweep/configs/precland-ardupilot-disc-speed-1.0.toml" in disc and "--realtime" in disc
+    assert run.ARMS["precland-ardupilot-disc"].params == run.ARMS["precland-ardupilot"].params
+
+
+def test_the_policies_fly_the_board_in_the_colour_pad_unless_told_otherwise() -> None:
+    args = run.parser().parse_args(["policies", "1.0"])
+    assert args.board == "aruco-disc"
+    assert run.parser().parse_args(["policies", "1.0", "--no-aruco"]).board is None
+    cmd = run.eval_command(Path("runs/x.npz"), "0.5", run.DEFAULT_RUNS / "x", 100, args.board)
+    assert "results/moving-pad/sweep/configs/precland-px4-disc-speed-0.5.toml" in cmd
+    assert "precland-px4-speed-0.5.toml" in " ".join(run.eval_command(Path("x.npz"), "0.5", Path("y"), 100, "aruco"))
+
+
+def test_a_grid_trained_again_must_give_the_committed_lines() -> None:
+    committed = run.finished_trials(run.POLICIES / "1.0" / "results.jsonl")
+    run.check_reproduced(committed, "1.0")  # the same lines: passes
+    key = next(iter(committed))
+    changed = {key: {**committed[key], "eval_successes": committed[key]["eval_successes"] + 1}}
+    with pytest.raises(SystemExit, match=key):
+        run.check_reproduced(changed, "1.0")
 
 
 def test_small_checks_never_land_in_the_committed_episodes(tmp_path: Path) -> None:
@@ -163,15 +185,29 @@ def _speeds(precland: tuple[int, int], policy: list[float]) -> dict:
     """One speed's block, as summary() makes it, from two precland arms' wins of 100 and a
     condition's per-trial rates."""
     arms = {arm: summarise.describe([_episode(k, k < w) for k in range(100)])
-            for arm, w in zip(summarise.PRECLAND_ARMS, precland, strict=True)}
+            for pad_arms in summarise.PRECLAND_FOR_PAD.values() for arm, w in zip(pad_arms, precland, strict=True)}
     cell = summarise.over_trials(policy)
-    return {"1.0": {"arms": arms, "policies": {"col": {"colour": cell}}}}
+    return {"1.0": {"arms": arms, "policies": {"col": {"colour": cell, "aruco-disc": cell}}}}
 
 
 def test_learning_wins_needs_90_percent_and_both_autopilots_at_50_or_below() -> None:
     assert summarise.learning_wins(_speeds((50, 10), [90.0] * 8), "col", "colour")["speeds"] == ["1.0"]
     assert summarise.learning_wins(_speeds((51, 10), [95.0] * 8), "col", "colour")["speeds"] == []
     assert summarise.learning_wins(_speeds((0, 0), [89.0, 90.0] * 4), "col", "colour")["speeds"] == []
+    assert summarise.learning_wins(_speeds((50, 10), [90.0] * 8), "col", "aruco-disc")["speeds"] == ["1.0"]
+
+
+def test_the_board_in_the_pad_is_asked_against_precland_on_that_board_only() -> None:
+    block = _speeds((100, 100), [60.0] * 8)
+    block["1.0"]["arms"]["precland-px4-disc"] = summarise.describe([_episode(k, k < 10) for k in range(100)])
+    block["1.0"]["arms"]["precland-ardupilot-disc"] = summarise.describe([_episode(k, k < 10) for k in range(100)])
+    block["1.0"]["policies"]["col"]["aruco-disc"] = summarise.over_trials([95.0] * 8)
+    q = summarise.question(block)
+    assert q["learning_wins"]["col/aruco-disc"]["speeds"] == ["1.0"]  # its own board's precland fails
+    assert q["learning_wins"]["col/colour"]["speeds"] == []
+    assert "precland-px4 over col/aruco-disc" not in q["precland_better"]
+    assert q["precland_better"]["precland-px4 over col/colour"]["speeds"] == ["1.0"]
+    assert not any(k.endswith("/aruco") for k in q["learning_wins"])  # the void pad answers nothing
 
 
 def test_precland_is_better_only_where_its_wilson_interval_is_above_the_policies() -> None:

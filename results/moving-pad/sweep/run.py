@@ -1,20 +1,23 @@
 """The pad-speed sweep: where each method stops working as the pad drives faster. The plan (task,
 arms, speeds, endpoints, the question) is docs/baselines.md, "Where learning wins: the pad-speed
 sweep", with its Amendment 1 (the roof carries the multirotor; the expert flown with and without
-``lead_moving_pad``, the leading expert teaching every policy), written before these runs.
+``lead_moving_pad``, the leading expert teaching every policy), Amendment 2 (CoL+) and
+Amendment 3 (the board inked into the colour pad, ``aruco-disc``), each written before its runs.
 Steps, each resumable on its own (a step whose kept output exists is skipped):
 
     python results/moving-pad/sweep/run.py configs                  # the task's config files, from configs/paper.toml
     python results/moving-pad/sweep/run.py fly precland-px4 0.5     # one arm at one pad speed (m/s)
     python results/moving-pad/sweep/run.py fly-real ardupilot 1.0   # precision landing on a real autopilot's SITL
-    python results/moving-pad/sweep/run.py policies 0.5             # Demo@20 / CoL@20, P1-P4 x replicates 0-1, trained
-                                                                    # at that speed, then each flown on the ArUco pad
+    python results/moving-pad/sweep/run.py policies 0.5             # Demo@20 / CoL@20 / CoL+@20, P1-P4 x replicates 0-1,
+                                                                    # trained at that speed, then each flown on the board
+                                                                    # inked into the pad (--board aruco: the first board)
     python results/moving-pad/sweep/run.py verify 0.5               # col experiment --verify: 2 trials rerun
     python results/moving-pad/sweep/run.py records                  # environment.jsonl from the runs' records
     python results/moving-pad/sweep/run.py summarise                # summary.json, table.md, ../sweep.png
 
-Arms: precland-px4, precland-ardupilot (PLND_OPTIONS bit 0 on), precland-px4-plain (the colour
-pad: nothing to see), expert, expert-lead; precland-ardupilot and precland-px4-plain fly a SITL
+Arms: precland-px4, precland-ardupilot (PLND_OPTIONS bit 0 on), their ``-disc`` twins on the
+board inked into the pad (Amendment 3), precland-px4-plain (the colour pad: nothing to see),
+expert, expert-lead; precland-ardupilot and precland-px4-plain fly a SITL
 that run.py starts itself (ArduPilot's PLND_* set over MAVLink; the colour pad under the
 companion's ArUco-pad file), see RUN.md. Speeds: 0, 0.25, 0.5, 0.75, 1.0, 1.5. ``--episodes N``
 (fly, policies) flies N starts instead of 100 as a check: its episodes go to the runs folder's
@@ -67,7 +70,11 @@ COPTER_GUIDED = 4
 PLND_MOVING_TARGET = (("PLND_ENABLED", 1.0, MAV_PARAM_TYPE_INT8), ("PLND_TYPE", 1.0, MAV_PARAM_TYPE_INT8),
                       ("PLND_OPTIONS", 1.0, MAV_PARAM_TYPE_INT16))
 READY_WITHIN_S = 120.0  # a reboot (8 s) and the EKF's settling (10 s) in real time, on a busy machine
-CONFIG_KINDS = ("colour-pad", "colour-pad-lead", "precland-px4", "precland-ardupilot")
+CONFIG_KINDS = ("colour-pad", "colour-pad-lead", "precland-px4", "precland-ardupilot", "precland-px4-disc",
+                "precland-ardupilot-disc")
+BOARDS = {"aruco": "precland-px4", "aruco-disc": "precland-px4-disc"}  # the policies' marked pads: their config kind
+BOARD_OF_KIND = {"precland-px4": "aruco", "precland-ardupilot": "aruco", "precland-px4-disc": "aruco-disc",
+                 "precland-ardupilot-disc": "aruco-disc"}
 
 
 @dataclass(frozen=True)
@@ -97,6 +104,10 @@ ARMS: dict[str, Arm] = {
     # the colour pad: the companion's file has the board (col fly refuses precland without it),
     # the SITL flies the colour pad, so the detector decodes nothing
     "precland-px4-plain": Arm(PRECLAND, "precland-px4", sitl_config="colour-pad"),
+    # Amendment 3: the same two arms on the board inked into the colour pad, which the policies see
+    "precland-px4-disc": Arm(PRECLAND, "precland-px4-disc"),
+    "precland-ardupilot-disc": Arm(PRECLAND, "precland-ardupilot-disc", sitl_config="precland-ardupilot-disc",
+                                   clock="realtime", params=PLND_MOVING_TARGET),
     "expert": Arm(EXPERT, "colour-pad"),
     "expert-lead": Arm(EXPERT, "colour-pad-lead"),
 }
@@ -177,13 +188,22 @@ def config_texts(paper: str, speed: str, conditions: tuple[str, ...] = CONDITION
     task = task_text(paper, speed)
     lead = set_key(task, "companion.pilot", "lead_moving_pad", True, "the leading expert (Amendment 1)")
     aruco = set_key(task, "sitl.camera", "pad_marker", "aruco", "the ArUco board on the pad (sitl/pad_marker.py)")
-    ardupilot = set_key(aruco, "sitl.personality", "autopilot", "ardupilot",
-                        "PLND_OPTIONS = 1 (moving target) is set over MAVLink by run.py: no config key")
+    disc = set_key(task, "sitl.camera", "pad_marker", "aruco-disc",
+                   "the ArUco board inked into the colour pad (sitl/pad_marker.py; Amendment 3)")
+
+    def ardupilot_of(text: str) -> str:
+        return set_key(text, "sitl.personality", "autopilot", "ardupilot",
+                       "PLND_OPTIONS = 1 (moving target) is set over MAVLink by run.py: no config key")
+
+    ardupilot = ardupilot_of(aruco)
     bodies = {
         "colour-pad": (task, "the colour pad (expert, precland-px4-plain's SITL)"),
         "colour-pad-lead": (lead, "the colour pad, the leading expert (expert-lead)"),
         "precland-px4": (aruco, "the ArUco board, PX4 (precland-px4; the policies flown on the board)"),
         "precland-ardupilot": (ardupilot, "the ArUco board, ArduPilot PLND with the moving-target option"),
+        "precland-px4-disc": (disc, "the board inked into the colour pad, PX4 (precland-px4-disc; the policies on it)"),
+        "precland-ardupilot-disc": (ardupilot_of(disc), "the board inked into the colour pad, ArduPilot PLND with the "
+                                                        "moving-target option"),
     }
     out = {config_path(kind, speed): header(config_path(kind, speed).name, speed, what) + body
            for kind, (body, what) in bodies.items()}
@@ -217,9 +237,9 @@ def expected_tables(kind: str, speed: str) -> dict[tuple[str, ...], object]:
     }
     if kind in ("colour-pad-lead", "policies"):
         want[("companion", "pilot", "lead_moving_pad")] = True
-    if kind in ("precland-px4", "precland-ardupilot"):
-        want[("sitl", "camera", "pad_marker")] = "aruco"
-    if kind == "precland-ardupilot":
+    if kind in BOARD_OF_KIND:
+        want[("sitl", "camera", "pad_marker")] = BOARD_OF_KIND[kind]
+    if kind in ("precland-ardupilot", "precland-ardupilot-disc"):
         want[("sitl", "personality", "autopilot")] = "ardupilot"
     if kind == "policies":
         want[("experiment", "interactions")] = [INTERACTIONS]
@@ -561,9 +581,11 @@ def keep_grid(out: Path, speed: str) -> Path:
 
 
 def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs: Path, workers: int,
-             aruco: bool = True) -> None:
+             board: str | None = "aruco-disc") -> None:
     """Train the grid of one speed (col experiment resumes it), keep its lines and each trial's
-    colour-pad evaluation, then (unless ``aruco`` is off) fly each final policy on the ArUco pad."""
+    colour-pad evaluation, then (unless ``board`` is None) fly each final policy on that marked
+    pad. A grid trained again (its checkpoints are not committed) must give the committed lines:
+    otherwise nothing is kept and the step stops."""
     config = policies_config_path(speed)
     if conditions and config_conditions(config) != conditions:
         with_conditions(config, conditions)
@@ -573,6 +595,7 @@ def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs
         _run([col(), "experiment", "--config", _rel(config), "--workers", str(workers), "--out", _rel(out)],
              runs / f"policies-{speed}.log")
     done = finished_trials(out / "results.jsonl")
+    check_reproduced(done, speed)
     keep_grid(out, speed)
     missing = [key for key in wanted if key not in done]
     if missing:
@@ -581,24 +604,33 @@ def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs
         colour = kept_path(f"{key}-speed-{speed}-colour", STARTS, runs)
         if not colour.exists():
             _keep(out / "trials" / key / "eval_episodes.jsonl", colour)
-    for key in [k for k in wanted if k in done] if aruco else []:
-        eval_aruco(key, out / done[key]["final_checkpoint"], speed, episodes, runs)
+    for key in [k for k in wanted if k in done] if board else []:
+        eval_marked(key, out / done[key]["final_checkpoint"], speed, episodes, runs, board)
 
 
-def eval_command(checkpoint: Path, speed: str, run_dir: Path, episodes: int) -> list[str]:
-    return [col(), "eval", _rel(checkpoint), "--config", _rel(config_path("precland-px4", speed)),
+def check_reproduced(done: dict[str, dict[str, Any]], speed: str) -> None:
+    """Every trial the committed grid of ``speed`` has must come out of this run line for line."""
+    committed = finished_trials(POLICIES / speed / "results.jsonl")
+    differ = [key for key, line in done.items() if key in committed and committed[key] != line]
+    if differ:
+        raise SystemExit(f"the grid at {speed} m/s trained again differs from policies/{speed}/results.jsonl in "
+                         f"{', '.join(differ)}: its policies are not the committed ones; nothing kept")
+
+
+def eval_command(checkpoint: Path, speed: str, run_dir: Path, episodes: int, board: str = "aruco-disc") -> list[str]:
+    return [col(), "eval", _rel(checkpoint), "--config", _rel(config_path(BOARDS[board], speed)),
             "--episodes", str(episodes), "--seed", str(FIRST_START), "--run-dir", _rel(run_dir), "--no-pictures"]
 
 
-def eval_aruco(key: str, checkpoint: Path, speed: str, episodes: int, runs: Path) -> None:
-    """One final policy (``trials/KEY/train/checkpoints/episode_019.npz``) alone on the ArUco pad."""
-    name = f"{key}-speed-{speed}-aruco"
+def eval_marked(key: str, checkpoint: Path, speed: str, episodes: int, runs: Path, board: str) -> None:
+    """One final policy (``trials/KEY/train/checkpoints/episode_019.npz``) alone on a marked pad."""
+    name = f"{key}-speed-{speed}-{board}"
     kept = kept_path(name, episodes, runs)
     if kept.exists():
         return
     run_dir = runs / name if episodes == STARTS else runs / "checks" / f"{name}-{episodes}"
     shutil.rmtree(run_dir, ignore_errors=True)
-    _run(eval_command(checkpoint, speed, run_dir, episodes), run_dir.parent / f"{run_dir.name}.log")
+    _run(eval_command(checkpoint, speed, run_dir, episodes, board), run_dir.parent / f"{run_dir.name}.log")
     _keep(run_dir / "episodes.jsonl", kept)
 
 
@@ -695,13 +727,15 @@ def parser() -> argparse.ArgumentParser:
     real.add_argument("autopilot", choices=tuple(REAL_SPEEDUP))
     real.add_argument("speed", type=speed_name)
     real.add_argument("--episodes", type=int, default=STARTS, help="a check: this many starts (kept under the runs folder)")
-    pol = sub.add_parser("policies", help="the grid of one speed, then its policies on the ArUco pad")
+    pol = sub.add_parser("policies", help="the grid of one speed, then its policies on a marked pad")
     pol.add_argument("speed", type=speed_name)
     pol.add_argument("--conditions", type=parse_conditions, default=None, help="e.g. demo,col,colplus (default: the config's)")
-    pol.add_argument("--episodes", type=int, default=STARTS, help="a check: the ArUco-pad evaluation's starts")
+    pol.add_argument("--episodes", type=int, default=STARTS, help="a check: the marked pad's evaluation's starts")
+    pol.add_argument("--board", choices=tuple(BOARDS), default="aruco-disc",
+                     help="the marked pad the policies fly (default aruco-disc, Amendment 3; aruco hides the colour pad)")
     pol.add_argument("--workers", type=int, default=WORKERS)
-    pol.add_argument("--no-aruco", dest="aruco", action="store_false",
-                     help="keep the grid and its colour-pad evaluations only (RUN.md: the colour detector finds no pad on the board)")
+    pol.add_argument("--no-aruco", dest="board", action="store_const", const=None,
+                     help="keep the grid and its colour-pad evaluations only")
     ver = sub.add_parser("verify", help="col experiment --verify of two trials of one speed's kept grid")
     ver.add_argument("speed", type=speed_name)
     sub.add_parser("records", help="environment.jsonl from the kept runs' records")
@@ -722,7 +756,7 @@ def main() -> None:
     elif args.step == "fly-real":
         fly_real(args.autopilot, args.speed, args.episodes, runs)
     elif args.step == "policies":
-        policies(args.speed, args.conditions, args.episodes, runs, args.workers, args.aruco)
+        policies(args.speed, args.conditions, args.episodes, runs, args.workers, args.board)
     elif args.step == "verify":
         verify(args.speed)
     elif args.step == "records":

@@ -27,19 +27,25 @@ ARMS = {
     "precland-px4": "precland, PX4 (our SITL), ArUco pad",
     "precland-ardupilot": "precland, ArduPilot PLND, moving-target option, ArUco pad",
     "precland-px4-plain": "precland, PX4, colour pad (a check: nothing to see)",
+    "precland-px4-disc": "precland, PX4 (our SITL), ArUco board in the colour pad",
+    "precland-ardupilot-disc": "precland, ArduPilot PLND, moving-target option, ArUco board in the colour pad",
     "expert": "scripted expert, colour pad",
     "expert-lead": "leading expert (lead_moving_pad), colour pad",
 }
-PRECLAND_ARMS = ("precland-px4", "precland-ardupilot")
+# The precision-landing arms each pad's policies are asked against: the colour pad's against the
+# first board's arms (the plan), the board inked into the pad's against the same pad (Amendment 3)
+PRECLAND_FOR_PAD = {"colour": ("precland-px4", "precland-ardupilot"),
+                    "aruco-disc": ("precland-px4-disc", "precland-ardupilot-disc")}
 CONDITIONS = {"demo": "Demo@20", "col": "CoL@20", "colplus": "CoL+@20"}
 PLANNED_CONDITIONS = ("demo", "col", "colplus")  # docs/baselines.md, Amendment 2
 LEARNED_CONDITIONS = ("col", "colplus")  # the question's "CoL@20 (or CoL+@20)"
-PADS = {"colour": "colour pad", "aruco": "ArUco pad (void as flown, RUN.md)"}
+PADS = {"colour": "colour pad", "aruco": "ArUco pad (void as flown, RUN.md)",
+        "aruco-disc": "ArUco board in the colour pad"}
 VOID_PADS = ("aruco",)  # RUN.md: the board covers the disc, the policies' detector sees no pad on it
 PARTICIPANTS = ("P1", "P2", "P3", "P4")
 REPLICATES = (0, 1)
 LANDS_PCT, PRECLAND_FAILS_PCT = 90.0, 50.0
-POLICY_FILE = re.compile(r"(?P<key>(?P<p>P\d+)-(?P<cond>[a-z]+)-20-s(?P<rep>\d+))-speed-(?P<speed>[0-9.]+)-(?P<pad>colour|aruco)")
+POLICY_FILE = re.compile(r"(?P<key>(?P<p>P\d+)-(?P<cond>[a-z]+)-20-s(?P<rep>\d+))-speed-(?P<speed>[0-9.]+)-(?P<pad>colour|aruco-disc|aruco)")
 ARM_FILE = re.compile(r"(?P<arm>[a-z0-9-]+?)-speed-(?P<speed>[0-9.]+)")
 
 
@@ -125,7 +131,7 @@ def missing(arms: dict, policies: dict) -> list[str]:
     conditions = sorted(set(PLANNED_CONDITIONS) | {c for cells in policies.values() for c in cells})
     for s in SPEEDS:
         for cond in conditions:
-            for pad in PADS:
+            for pad in [p for p in PADS if p not in VOID_PADS]:
                 have = policies.get(s, {}).get(cond, {}).get(pad, {})
                 lack = [k for k in expected_trial_keys(cond) if k not in have]
                 if lack:
@@ -156,13 +162,14 @@ def _policy(block: dict, cond: str, pad: str) -> dict | None:
 
 
 def learning_wins(speeds: dict[str, Any], cond: str, pad: str) -> dict[str, list[str]]:
-    """Speeds where the condition's mean over trials is >= 90 % while both precland arms land
-    <= 50 %; undecided: speeds lacking one of the three."""
+    """Speeds where the condition's mean over trials on ``pad`` is >= 90 % while both precland
+    arms that pad is asked against land <= 50 %; undecided: speeds lacking one of the three."""
     yes, undecided = [], []
+    arms = PRECLAND_FOR_PAD[pad]
     for s, block in speeds.items():
         pol = _policy(block, cond, pad)
-        precland = [row for a in PRECLAND_ARMS if (row := block["arms"].get(a)) and row["episodes"]]
-        if pol is None or len(precland) < len(PRECLAND_ARMS):
+        precland = [row for a in arms if (row := block["arms"].get(a)) and row["episodes"]]
+        if pol is None or len(precland) < len(arms):
             undecided.append(s)
         elif pol["mean_success_pct"] >= LANDS_PCT and all(p["success_rate_pct"] <= PRECLAND_FAILS_PCT for p in precland):
             yes.append(s)
@@ -188,12 +195,13 @@ def question(speeds: dict[str, Any]) -> dict[str, Any]:
     pads = [pad for pad in PADS if pad not in VOID_PADS]
     wins = {f"{c}/{pad}": learning_wins(speeds, c, pad) for c in conditions if c in LEARNED_CONDITIONS for pad in pads}
     better = {f"{arm} over {c}/{pad}": precland_better(speeds, arm, c, pad)
-              for arm in PRECLAND_ARMS for c in conditions for pad in pads}
+              for pad in pads for arm in PRECLAND_FOR_PAD[pad] for c in conditions}
     return {"learning_wins": wins, "precland_better": better,
             "rule": f"learning wins: the condition's mean over its trials >= {LANDS_PCT:g} % while both precland arms "
                     f"land <= {PRECLAND_FAILS_PCT:g} %; precland better: its Wilson interval's low end above the "
-                    "condition's interval's high end (95 % BCa over trials); the policies' ArUco-pad evaluations "
-                    "are void as flown (RUN.md) and answer nothing"}
+                    "condition's interval's high end (95 % BCa over trials); the colour pad's policies against the "
+                    "first board's precland arms, the board in the colour pad's against that board's (Amendment 3); "
+                    "the policies' evaluations on the first ArUco pad are void as flown (RUN.md) and answer nothing"}
 
 
 # ----- writing -------------------------------------------------------------------------------------
@@ -258,7 +266,7 @@ def table(s: dict) -> str:
              "Made by `python results/moving-pad/sweep/summarise.py` from `episodes/`; the plan is docs/baselines.md, "
              "\"Where learning wins: the pad-speed sweep\", and its Amendment 1: the roof carries the multirotor at every "
              "speed, the expert is flown with and without `lead_moving_pad`, and every policy's teacher is the leading "
-             "expert. Success: touchdown on the roof within 0.5 m of the pad's centre; arms with a 95 % Wilson "
+             "expert; Amendment 2 adds CoL+, Amendment 3 the ArUco board inked into the colour pad (`aruco-disc`). Success: touchdown on the roof within 0.5 m of the pad's centre; arms with a 95 % Wilson "
              "interval, policies as the mean over their trials with a 95 % BCa bootstrap interval over trials (and "
              "pooled with Wilson); distance and time among touchdowns.", "", *_matrix(s), "", "## The question", "",
              *_answers(s["question"]), ""]
@@ -298,7 +306,7 @@ def _series(s: dict) -> Iterable[tuple[str, list[float], list[float], list[tuple
                 yield (f"{CONDITIONS.get(cond, cond)}, {pad_label} (mean over trials)", [x for x, _ in pts],
                        [c["mean_success_pct"] for _, c in pts],
                        [tuple(c["interval95_pct"] or (c["mean_success_pct"],) * 2) for _, c in pts],
-                       "--" if pad == "aruco" else ":")
+                       "--" if pad == "aruco-disc" else ":")
 
 
 def plot(s: dict, path: Path = PLOT) -> bool:
@@ -319,7 +327,7 @@ def plot(s: dict, path: Path = PLOT) -> bool:
     ax.set_ylabel("success, % (95 % interval)")
     ax.set_xticks([float(v) for v in SPEEDS])
     ax.set_ylim(-3, 103)
-    ax.set_title("The pad-speed sweep (docs/baselines.md, Amendment 1: roof carries, leading expert teaches)")
+    ax.set_title("The pad-speed sweep (docs/baselines.md, Amendments 1-3)")
     ax.legend(fontsize=7, loc="lower left")
     ax.grid(alpha=0.3)
     fig.tight_layout()
