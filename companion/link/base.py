@@ -171,14 +171,16 @@ class VehicleLink(ABC):
     @abstractmethod
     def stats(self) -> LinkStats: ...
 
-    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+    def read_param(self, name: str, timeout_s: float | None = None) -> float | None:
         """One of the vehicle's parameters by name (PARAM_REQUEST_READ); None when the vehicle
-        does not answer within ``timeout_s`` or this backend cannot ask."""
+        does not answer within ``timeout_s`` (None: as long as a command is tried, ``command_timeout_s``
+        x (1 + ``command_retries``)) or this backend cannot ask."""
         return None
 
-    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+    def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
         """Set one of the vehicle's parameters (PARAM_SET); the value it echoes in PARAM_VALUE,
-        or None when no echo came within ``timeout_s``. A backend that cannot: LinkError."""
+        or None when no echo came within ``timeout_s`` (None: as :meth:`read_param`). A backend
+        that cannot: LinkError."""
         raise LinkError(f"this link ({type(self).__name__}) cannot set parameters; use the pymavlink link")
 
     def reboot(self) -> None:

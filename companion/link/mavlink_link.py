@@ -311,23 +311,31 @@ class MavlinkLink(VehicleLink):
             found.append(str(msg.text).rstrip("\x00").strip())
         return tuple(dict.fromkeys(t for t in found if t))
 
-    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+    def read_param(self, name: str, timeout_s: float | None = None) -> float | None:
         """PARAM_REQUEST_READ by name, asked again every ``command_timeout_s`` until a
-        PARAM_VALUE of that name comes (None after ``timeout_s``)."""
+        PARAM_VALUE of that name comes (None after ``timeout_s``; by default as many tries as a
+        command gets: a loaded autopilot's reply can be lost or late, as a command's ACK can)."""
         self._require_alive()
         tsys, tcomp = self._target()
+        budget = self._param_budget_s(timeout_s)
         value = self._param_exchange(name, lambda: self._io.mav.param_request_read_encode(tsys, tcomp, name.encode(), -1),
-                                     timeout_s, lambda reply: math.isfinite(reply.param_value))
+                                     budget, lambda reply: math.isfinite(reply.param_value))
         if value is None:
-            log.info("the vehicle did not answer PARAM_REQUEST_READ(%s) within %.1f s", name, timeout_s)
+            log.info("the vehicle did not answer PARAM_REQUEST_READ(%s) within %.1f s", name, budget)
         return value
 
-    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
-        """PARAM_SET, sent again every ``command_timeout_s`` until PARAM_VALUE echoes the name."""
+    def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
+        """PARAM_SET, sent again every ``command_timeout_s`` until PARAM_VALUE echoes the name
+        (None after ``timeout_s``, by default as many tries as a command gets). Setting a value
+        twice is harmless, so a lost echo is simply asked for again."""
         self._require_alive()
         tsys, tcomp = self._target()
         return self._param_exchange(name, lambda: self._io.mav.param_set_encode(
-            tsys, tcomp, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32), timeout_s, lambda reply: True)
+            tsys, tcomp, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32),
+            self._param_budget_s(timeout_s), lambda reply: True)
+
+    def _param_budget_s(self, timeout_s: float | None) -> float:
+        return self.cfg.command_timeout_s * (1 + self.cfg.command_retries) if timeout_s is None else timeout_s
 
     def _param_exchange(self, name: str, request: Callable[[], Any], timeout_s: float,
                         accept: Callable[[Any], bool]) -> float | None:

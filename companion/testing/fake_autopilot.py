@@ -53,6 +53,7 @@ class FakeAutopilot:
         self.state = AutopilotState()
         self.arm_result = result_code(arm_result)
         self.ack_commands = True
+        self.drop_param_echoes = 0  # this many PARAM_SETs are applied but not echoed (a lost reply)
 
     # ----------------------------------------------------------------- commands
     def handle(self, msg: Any) -> list[Any]:
@@ -64,6 +65,9 @@ class FakeAutopilot:
             self._setpoint(msg)
         elif kind == "PARAM_SET":
             self.state.params[msg.param_id] = float(msg.param_value)
+            if self.drop_param_echoes > 0:
+                self.drop_param_echoes -= 1
+                return []
             return [self._param_value(msg.param_id)]
         elif kind == "PARAM_REQUEST_READ" and msg.param_id in self.state.params:
             return [self._param_value(msg.param_id)]

@@ -113,6 +113,11 @@ class FakeVehicle:
         with self._lock:
             self.autopilot.ack_commands = ack
 
+    def drop_param_echoes(self, count: int) -> None:
+        """Apply the next ``count`` PARAM_SETs without echoing them (replies lost on the way)."""
+        with self._lock:
+            self.autopilot.drop_param_echoes = count
+
     def go_silent(self) -> None:
         """Simulate a radio drop: send nothing and hear nothing until :meth:`resume`."""
         with self._lock:

@@ -65,7 +65,7 @@ class RecordingLink:
         """No telemetry of its own: a lander keeps the step's snapshot."""
         return None
 
-    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+    def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
         self.calls.append(("param", (name, value)))
         return value if self.echo is None else self.echo.get(name)
 
@@ -144,11 +144,11 @@ class BootingLink(RecordingLink):
         self.clock = FakeClock()
         self._rebooted_s: float | None = None
 
-    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+    def read_param(self, name: str, timeout_s: float | None = None) -> float | None:
         self.calls.append(("read", name))
         return self.params.get(name)
 
-    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+    def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
         self.params[name] = value
         return super().set_param(name, value, timeout_s)
 

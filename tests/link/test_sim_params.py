@@ -32,10 +32,10 @@ class ParamVehicle:
         self.echo_offset = echo_offset
         self.sets: list[tuple[str, float]] = []
 
-    def read_param(self, name: str, timeout_s: float = 2.0) -> float | None:
+    def read_param(self, name: str, timeout_s: float | None = None) -> float | None:
         return self.params.get(name)
 
-    def set_param(self, name: str, value: float, timeout_s: float = 2.0) -> float | None:
+    def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
         if name not in self.params:
             return None  # an unknown parameter: no PARAM_VALUE comes back
         self.sets.append((name, value))
