@@ -110,20 +110,16 @@ def test_pose_error_is_a_few_centimetres_from_one_to_three_metres(
     assert pose.reprojection_px < 1.0
 
 
-@pytest.mark.parametrize(("height_m", "ids"), [(0.15, {0}), (0.6, {0}), (5.0, {1, 2, 3, 4}), (8.0, {5, 6})])
-def test_the_board_is_read_from_the_start_height_down_to_touchdown(
-        renderer: CameraRenderer, detector: ArucoPadDetector, height_m: float, ids: set[int]) -> None:
+@pytest.mark.parametrize(("board", "height_m", "ids"), [
+    ("aruco", 0.15, {0}), ("aruco", 0.6, {0}), ("aruco", 5.0, {1, 2, 3, 4}), ("aruco", 8.0, {5, 6}),
+    ("aruco-disc", 0.15, {7}), ("aruco-disc", 0.6, {7}), ("aruco-disc", 1.6, {8, 9, 10, 11}), ("aruco-disc", 8.0, {12, 13}),
+])
+def test_each_board_is_read_from_the_start_height_down_to_touchdown(
+        request: pytest.FixtureRequest, board: str, height_m: float, ids: set[int]) -> None:
     """The centre marker near touchdown, the ring in between, the outer pair from the start."""
+    prefix = "" if board == "aruco" else "disc_"
+    renderer, detector = request.getfixturevalue(f"{prefix}renderer"), request.getfixturevalue(f"{prefix}detector")
     pose, t, _ = pose_at(renderer, detector, height_m, (0.0, 0.0), (0.0, 0.0, 0.0))
-    assert pose is not None
-    assert ids <= set(pose.marker_ids)
-    assert np.linalg.norm(np.array(pose.position_cam_m) - t) < 0.02 * height_m + 0.02
-
-
-@pytest.mark.parametrize(("height_m", "ids"), [(0.15, {7}), (0.6, {7}), (1.6, {8, 9, 10, 11}), (8.0, {12, 13})])
-def test_the_board_in_the_disc_is_read_from_the_start_height_down_to_touchdown(
-        disc_renderer: CameraRenderer, disc_detector: ArucoPadDetector, height_m: float, ids: set[int]) -> None:
-    pose, t, _ = pose_at(disc_renderer, disc_detector, height_m, (0.0, 0.0), (0.0, 0.0, 0.0))
     assert pose is not None
     assert ids <= set(pose.marker_ids)
     assert np.linalg.norm(np.array(pose.position_cam_m) - t) < 0.02 * height_m + 0.02
