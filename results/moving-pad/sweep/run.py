@@ -604,8 +604,13 @@ def policies(speed: str, conditions: tuple[str, ...] | None, episodes: int, runs
         colour = kept_path(f"{key}-speed-{speed}-colour", STARTS, runs)
         if not colour.exists():
             _keep(out / "trials" / key / "eval_episodes.jsonl", colour)
-    for key in [k for k in wanted if k in done] if board else []:
-        eval_marked(key, out / done[key]["final_checkpoint"], speed, episodes, runs, board)
+    if board:  # each evaluation is its own col process: ``workers`` of them at once
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+            for evaluated in [pool.submit(eval_marked, key, out / done[key]["final_checkpoint"], speed, episodes, runs, board)
+                              for key in wanted if key in done]:
+                evaluated.result()  # a failed evaluation stops the step (the others already kept stay)
 
 
 def check_reproduced(done: dict[str, dict[str, Any]], speed: str) -> None:
