@@ -90,6 +90,11 @@ class SessionConfig(Section):
     autopilot_sim_disturbance: bool = Field(
         False, description="a real autopilot's SITL (no simulator of ours): set its simulator's wind and turbulence "
         "from [sitl.disturbance] at each episode start (ArduCopter SIM_WIND_*; PX4 SIH has no wind), docs/link.md")
+    touchdown_by_truth_contact: bool = Field(
+        False, description="a real autopilot's SITL that sends its truth, the rendered pad driving (no surface there): "
+        "the first truth sample within truth_contact_m of the ground where the vehicle stood disarmed is a touchdown, "
+        "and the vehicle is then disarmed, forced (only a SITL has truth); companion/control/truth_contact.py")
+    truth_contact_m: float = Field(0.05, gt=0, le=1, description="touchdown_by_truth_contact: this close to the ground")
     sih_mass_scale: float = Field(
         1.0, gt=0, le=5, description="PX4 SIH: SIH_MASS set to this x the value it had (a heavier vehicle than trained on)")
     sih_drag_scale: float = Field(

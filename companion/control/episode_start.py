@@ -21,6 +21,7 @@ from companion.config import SessionConfig
 from companion.control.link_port import HOLD, LinkPort
 from companion.control.precland import PrecisionLander
 from companion.control.sequences import arm_when_ready, streaming, take_off, when_ready
+from companion.control.truth_contact import TruthGround
 from companion.errors import ColError, CommandRejected, LinkError
 from companion.link.dialect import Dialect
 from companion.link.sim_params import AutopilotSim
@@ -32,6 +33,7 @@ log = logging.getLogger(__name__)
 OFFBOARD_ATTEMPTS = 3
 RETRY_STREAM_FRAMES = 5  # after a refusal: half a second of setpoints, so a lossy link delivers some
 TELEMETRY_FRAMES = 100  # frames after a reset within which the vehicle must report being in the air
+TRUTH_FRAMES = 50  # frames to wait for the SITL's first truth while the vehicle stands (about 5 s)
 TAKEOFF_ATTEMPTS = 2  # a vehicle that disarmed itself as it took off is taken off once more
 
 
@@ -48,8 +50,11 @@ class StartParts(Protocol):
 class EpisodeStart:
     """Starts episodes on one vehicle through its :class:`LinkPort` (module docstring)."""
 
-    def __init__(self, port: LinkPort, parts: StartParts, dialect: Callable[[], Dialect]) -> None:
+    def __init__(self, port: LinkPort, parts: StartParts, dialect: Callable[[], Dialect],
+                 truth_ground: TruthGround | None = None) -> None:
         self.port, self.parts, self._dialect = port, parts, dialect
+        self.truth_ground = truth_ground
+        """Where a SITL's truth puts the ground, measured before each take-off (None: not asked)."""
         self._asked_truth = False
         self._precland_prepared = False  # the lander's boot-time parameters checked (and rebooted for)
         self._warned_home = False
@@ -174,10 +179,27 @@ class EpisodeStart:
         if self.parts.autopilot_sim is not None:
             notes += self.parts.autopilot_sim.prepare_episode(port.link, snap.autopilot, 0 if seed is None else seed)
         if not snap.in_air:
+            if self.truth_ground is not None:
+                self._measure_ground(snap)
             snap = self._take_off()
         if snap is not None:
             self._check_home()
         return self._goto(start, snap)
+
+    def _measure_ground(self, snap: VehicleSnapshot) -> None:
+        """The truth's level of the vehicle standing disarmed (companion/control/truth_contact.py),
+        from the first snapshot that carries the truth (asked for just before, at the first start)."""
+        assert self.truth_ground is not None
+        for _ in range(TRUTH_FRAMES):
+            self.truth_ground.observe_standing(snap)
+            if self.truth_ground.ground_down_m is not None and snap.true_pose is not None:
+                return
+            nxt = self.port.next_snapshot()
+            if nxt is None:
+                break
+            snap = nxt
+        log.warning("no truth from the vehicle standing before its take-off: touchdowns by truth contact use "
+                    "the last level measured (%s)", self.truth_ground.ground_down_m)
 
     def _take_off(self) -> VehicleSnapshot | None:
         """Take off and wait for the climb (30 s of control steps). The last episode leaves the

@@ -26,6 +26,7 @@ from typing import Any
 
 from companion.control.safety import FenceStatus, Geofence
 from companion.control.touchdown import Evidence, TouchdownAssist, touchdown_evidence
+from companion.control.truth_contact import TruthGround
 from companion.errors import ColError
 from companion.link.home import HomeFrame
 from companion.link.truth import true_distance_m as truth_distance_m
@@ -81,14 +82,15 @@ class Verdict:
 
 
 def judge_vehicle(steps_taken: int, max_steps: int, snap: VehicleSnapshot | None, fence: Geofence | None,
-                  home: HomeFrame, assist: TouchdownAssist | None = None) -> Verdict:
+                  home: HomeFrame, assist: TouchdownAssist | None = None, ground: TruthGround | None = None) -> Verdict:
     """:func:`judge_snapshot` on a vehicle the companion flies with its touchdown ``assist``
     (companion/control/touchdown.py): a touchdown is the landed state or, where the vehicle cannot
-    say, the assist's evidence; a vehicle the assist finds standing is not below the fence.
+    say, the assist's evidence, or (``ground``) a SITL's truth of the first ground contact
+    (companion/control/truth_contact.py); a vehicle the assist finds standing is not below the fence.
     ``snap`` None: only after the last step (a driver recovers a lost link before a step)."""
     if snap is None:
         return Verdict(judge_frame(steps_taken, max_steps, False, None))
-    evidence = touchdown_evidence(snap, assist)
+    evidence = touchdown_evidence(snap, assist, ground)
     standing = assist is not None and assist.engaged
     outcome = judge_snapshot(steps_taken, max_steps, snap, fence, home, touched_down=evidence is not None,
                              standing=standing)

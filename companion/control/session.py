@@ -42,7 +42,8 @@ from companion.control.precland import fly_precland
 from companion.control.records import StepView, episode_record, supervised_steps
 from companion.control.sequences import leave_safe
 from companion.control.step import StepPipeline
-from companion.control.touchdown import VehicleTouchdown
+from companion.control.touchdown import TRUTH_CONTACT_NOTE, VehicleTouchdown
+from companion.control.truth_contact import TruthGround
 from companion.errors import ColError, LinkLost
 from companion.link.dialect import Dialect
 from companion.link.home import HomeFrame
@@ -71,7 +72,10 @@ class EpisodeRunner:
         """Touchdowns the vehicle's land detector recognises (companion/control/touchdown.py)."""
         self.port = LinkPort(parts.link, parts.lockstep, parts.cfg.control_rate_hz, self.home, parts.dialect,
                              parts.cfg.clock)
-        self.starter = EpisodeStart(self.port, parts, lambda: self.dialect)
+        cfg = parts.cfg
+        self.truth_ground = TruthGround(cfg.truth_contact_m) if cfg.touchdown_by_truth_contact else None
+        """A SITL's truth judging the first ground contact (companion/control/truth_contact.py)."""
+        self.starter = EpisodeStart(self.port, parts, lambda: self.dialect, self.truth_ground)
         self.trace: list[tuple[int, float, str]] = []
         """The last episode, step by step: (step, disagreement, who flew: policy, human, hold, land)."""
         self._fresh = FreshnessGate()
@@ -133,6 +137,8 @@ class EpisodeRunner:
                 outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
             if outcome == "touchdown" and self._evidence_note is not None:
                 notes.append(self._evidence_note)
+                if self._evidence_note == TRUTH_CONTACT_NOTE:
+                    notes.append(self._stand_down())
         except ColError as exc:
             log.error("episode %d ended by an error: %s", episode, exc)
             outcome = "error"
@@ -148,6 +154,16 @@ class EpisodeRunner:
         if source_notes is not None:  # the rendered camera: frames from truth or the estimate
             notes.extend(source_notes())
         return self._record(episode, phase, seed, steps, outcome, version, snap, t0_ms, wall0, notes)
+
+    def _stand_down(self) -> str:
+        """After a touchdown by the SITL's truth, the vehicle's land detector may never fire (the
+        pad it follows drives on): disarmed, forced, so the next start takes off from the ground."""
+        try:
+            self.p.link.force_disarm()
+        except ColError as exc:
+            log.error("could not disarm after the truth's touchdown: %s", exc)
+            return f"not disarmed after the truth's touchdown: {exc}"
+        return "disarmed (forced) after the truth's touchdown"
 
     def _leave_safe_after_error(self) -> None:
         """On a vehicle that flies to its starts; a simulator's reset takes the vehicle over anyway
@@ -213,7 +229,8 @@ class EpisodeRunner:
         (time, touchdown, geofence), then an end asked for from outside. ``flying`` False: the
         autopilot's precision landing flies (its own time limit, no companion geofence)."""
         verdict = outcome_rule.judge_vehicle(step, self.p.cfg.max_steps if flying else sys.maxsize, snap,
-                                             self.p.fence if flying else None, self.home, self.touchdown.assist)
+                                             self.p.fence if flying else None, self.home, self.touchdown.assist,
+                                             self.truth_ground)
         if verdict.evidence is not None:
             log.warning("%s", verdict.evidence.message)
             self._evidence_note = verdict.evidence.note

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from companion.config import LandingConfig
+from companion.control.truth_contact import TruthGround
 from companion.errors import ColError
 from companion.link.base import VehicleLink
 from companion.link.home import HomeFrame
@@ -41,6 +42,7 @@ CONTACT_RANGE_M = 0.1  # a downward rangefinder this close to the surface: stand
 RANGE_FRESH_S = 0.5
 RANGE_CONTACT_STEPS = 3  # consecutive steps of rangefinder contact (noise of one reading is not contact)  # a rangefinder reading older than this says nothing
 RELEASE_CLIMB_M = 0.5  # engaged, and then this much higher: it was not standing after all
+TRUTH_CONTACT_NOTE = "touchdown judged by the SITL's truth: first ground contact (the rendered pad is no surface)"
 ASKED_DOWN_M_S = 0.02  # a setpoint this slow downwards still counts as someone asking to descend
 
 
@@ -214,11 +216,18 @@ class Evidence:
     message: str = ""
 
 
-def touchdown_evidence(snap: VehicleSnapshot, assist: TouchdownAssist | None) -> Evidence | None:
-    """Whether the vehicle stands: its landed state; for a vehicle that reports none, or whose
-    detector is fed a drifting estimate, the assist's evidence (with a note); None: not."""
+def touchdown_evidence(snap: VehicleSnapshot, assist: TouchdownAssist | None,
+                       ground: TruthGround | None = None) -> Evidence | None:
+    """Whether the vehicle stands: its landed state; where a SITL's truth is asked to judge
+    (``ground``, companion/control/truth_contact.py), its first ground contact; for a vehicle that
+    reports no landed state, or whose detector is fed a drifting estimate, the assist's evidence
+    (each with a note); None: not."""
     if snap.landed_state == "ON_GROUND":
         return Evidence()
+    if ground is not None and ground.touching(snap):
+        return Evidence(TRUTH_CONTACT_NOTE,
+                        f"touchdown judged by the SITL's truth: ground contact, {ground.height_m(snap):.3f} m above "
+                        f"where the vehicle stood, while it said {snap.landed_state}")
     if snap.landed_state == "UNDEFINED" and assist is not None and assist.standing_long_enough():
         return Evidence("touchdown judged by the companion: no landed state, standing",
                         "touchdown judged by the companion: the vehicle reports no landed state "

@@ -183,6 +183,12 @@ class VehicleLink(ABC):
         that cannot: LinkError."""
         raise LinkError(f"this link ({type(self).__name__}) cannot set parameters; use the pymavlink link")
 
+    def force_disarm(self) -> None:
+        """MAV_CMD_COMPONENT_ARM_DISARM forced (param2 21196): disarmed whatever the vehicle's own
+        checks say. Only for a SITL's vehicle standing on the ground its land detector has not
+        recognised (companion/control/truth_contact.py). A backend that cannot: LinkError."""
+        raise LinkError(f"this link ({type(self).__name__}) cannot force a disarm; use the pymavlink link")
+
     def reboot(self) -> None:
         """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (param1 = 1: reboot the autopilot), ACKed; the
         vehicle then goes silent and comes back by itself. A backend that cannot: LinkError."""

@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 STATUSTEXT_GRACE_S = 0.3  # after a refusal: how long the vehicle's reasons may trail its ACK
 UINT32_MAX = 2**32 - 1
 NAN = float("nan")  # MAVLink's "not set / use current" in command parameters
+FORCE_ARM_DISARM = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2: arm or disarm whatever the checks say
 # streams a PX4-like vehicle sends by default that no part of the companion reads (HEARTBEAT,
 # ATTITUDE, LOCAL_POSITION_NED, EXTENDED_SYS_STATE and SYSTEM_TIME are what it folds)
 HOME_POSITION_RATE_HZ = 0.5  # home moves only when the vehicle is armed again; heights are taken from it
@@ -127,6 +128,10 @@ class MavlinkLink(VehicleLink):
     def disarm(self) -> None:
         self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [0.0], "disarm",
                       "the vehicle refuses to disarm in the air; land first")  # fmt: skip
+
+    def force_disarm(self) -> None:
+        self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [0.0, FORCE_ARM_DISARM], "force disarm",
+                      "the vehicle refused even a forced disarm")  # fmt: skip
 
     def set_mode(self, name: str) -> None:
         snapshot = self._require_alive()

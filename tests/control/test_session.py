@@ -26,6 +26,7 @@ from companion.msg.observation import Observation
 from companion.msg.sample import Source
 from companion.msg.setpoint import VelocitySetpoint
 from companion.msg.snapshot import VehicleSnapshot
+from companion.msg.true_pose import TruePose
 from companion.vision.observer import Observer
 from companion.vision.perception import PadDetector
 
@@ -646,3 +647,51 @@ def test_the_policys_frame_moves_what_is_seen_and_recorded_not_what_is_judged(po
     downs = dataset.view().obs[:, 2] * 10.0  # down_m / 10 m in the vector
     assert downs[0] == pytest.approx(-3.0 + shift, abs=0.05)
     assert (policy_pad is None) == (not any("policy's frame" in n for n in record.notes))
+
+
+class TruthLink(FlyToLink):
+    """A SITL's vehicle that sends its truth (0.44 m below the local origin on the ground, as PX4
+    SIH did) and whose land detector never fires once armed: on the ground it says LANDING, as
+    real ArduCopter did chasing a rendered pad that drove on."""
+
+    GROUND_DOWN_M = 0.44
+
+    def __init__(self) -> None:
+        super().__init__((0.0, 0.0, 0.0))
+        self.armed = False
+        self.forced: list[int] = []
+
+    def _snap(self) -> VehicleSnapshot:
+        snap = super()._snap()
+        on_ground = self.pos[2] >= 0
+        landed = "ON_GROUND" if on_ground and not self.armed else "LANDING" if on_ground else "IN_AIR"
+        truth = TruePose(float(self.pos[0]), float(self.pos[1]), float(self.pos[2]) + self.GROUND_DOWN_M,
+                         (0.0, 0.0, 0.0), self.t_ms, "HIL_STATE_QUATERNION", 1.0)
+        return replace(snap, landed_state=landed, true_pose=truth)
+
+    def takeoff(self, alt_m: float) -> None:
+        self.pos = np.array([self.pos[0], self.pos[1], -alt_m])
+
+    def force_disarm(self) -> None:
+        self.forced.append(self.t_ms)
+        self.armed = False
+
+
+@pytest.mark.parametrize("asked", [True, False])
+def test_the_truths_first_ground_contact_ends_the_episode_and_the_vehicle_is_disarmed_for_the_next(asked: bool) -> None:
+    link = TruthLink()
+    runner, _ = make_runner(link, ScriptedHuman(set()), runner=policy_runner(), max_steps=300,
+                            session_update={"touchdown_by_truth_contact": asked})
+    runner.p.simulator = None
+    runner.p.observer = Observer(DrivingPadCamera((0.5, 0.0)), PadDetector(), (320, 240))  # type: ignore[arg-type]
+    record = runner.run(0, Phase.DEMONSTRATION, seed=7)
+    if not asked:  # the vehicle's own word only: it never says ON_GROUND, so the time runs out
+        assert record.outcome == "timeout" and not link.forced
+        return
+    assert record.outcome == "touchdown", record.notes
+    assert "touchdown judged by the SITL's truth: first ground contact (the rendered pad is no surface)" in record.notes
+    assert "disarmed (forced) after the truth's touchdown" in record.notes
+    assert len(link.forced) == 1 and not link.armed
+    assert runner.truth_ground is not None and runner.truth_ground.ground_down_m == pytest.approx(TruthLink.GROUND_DOWN_M)
+    second = runner.run(1, Phase.DEMONSTRATION, seed=8)  # from the ground again: taken off, flown, ended alike
+    assert second.outcome == "touchdown" and len(link.forced) == 2, second.notes
