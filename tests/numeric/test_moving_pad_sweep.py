@@ -179,6 +179,21 @@ def test_a_partial_sweep_is_summarised_and_says_what_is_missing(tmp_path: Path) 
     assert wins["speeds"] == ["1.0"] and "0" in wins["undecided"]
     md = summarise.table(s)
     assert "## Not run yet" in md and "## Pad at 1.0 m/s" in md and "## Pad at 0.5 m/s" not in md
+    assert "expert-lead-px4-real at 0.5 m/s" in s["missing"]
+
+
+def test_the_real_autopilots_arms_are_scored_by_the_truths_distance_apart_from_the_question(tmp_path: Path) -> None:
+    rows = [{**_episode(k, k < 15), "touchdown_distance_m": 0.9, "true_touchdown_distance_m": 0.2 + 0.01 * k}
+            for k in range(20)]
+    (tmp_path / "precland-ardupilot-real-speed-1.0.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    s = summarise.summary(tmp_path)
+    real = s["speeds"]["1.0"]["real_arms"]["precland-ardupilot-real"]
+    assert real["success_rate_pct"] == 75.0 and real["touchdown_distance_m_median"] == pytest.approx(0.295)
+    assert "precland-ardupilot-real" not in s["speeds"]["1.0"]["arms"]  # not one of the question's arms
+    assert "precland-ardupilot-real at 1.0 m/s" not in s["missing"]
+    md = summarise.table(s)
+    assert "## On the real autopilots' SITL (Amendment 4)" in md
+    assert "| precland, real ArduCopter, PLND with the moving-target option | 1.0 | 75.0 %" in md
 
 
 def _speeds(precland: tuple[int, int], policy: list[float]) -> dict:
@@ -222,14 +237,24 @@ def test_precland_is_better_only_where_its_wilson_interval_is_above_the_policies
     assert summarise.precland_better(_speeds((100, 100), [97.0]), "precland-px4", "col", "colour")["undecided"] == ["1.0"]
 
 
+@pytest.mark.parametrize("arm", ["precland", "expert-lead"])
 @pytest.mark.parametrize("speed", ["0.5", "1.0", "1.5"])
-def test_the_real_autopilots_precision_landing_sees_the_board_on_a_pad_that_drives_at_the_speed(
-        speed: str, tmp_path: Path) -> None:
-    path = tmp_path / run.real_config_path(speed).name
-    path.write_text(run.real_config_text(speed))
+def test_the_real_autopilots_arms_see_the_board_in_the_pad_that_drives_at_the_speed_and_land_by_truth(
+        speed: str, arm: str, tmp_path: Path) -> None:
+    path = tmp_path / run.real_config_path(speed, arm).name
+    path.write_text(run.real_config_text(speed, arm))
     cfg, sitl = load_companion_config(path), load_sitl_config(path)
-    assert cfg.perception.camera == "render" and sitl.camera.pad_marker == "aruco"
+    assert cfg.perception.camera == "render" and sitl.camera.pad_marker == "aruco-disc"  # Amendment 3's board
     assert cfg.session.autopilot_sim_disturbance and cfg.session.clock == "vehicle"
+    assert cfg.session.touchdown_by_truth_contact  # Amendment 4: the rendered pad is no surface
+    assert cfg.pilot.lead_moving_pad == (arm == "expert-lead")
     drive = EpisodeDisturbance.draw(sitl.disturbance, 100_000).vehicle_velocity_ne_m_s
     assert math.hypot(*drive) == pytest.approx(float(speed), abs=1e-12)
     assert sitl.world.vehicle_height_m == 0.0 and cfg.session.pad_ned_m == (0.0, 0.0, 0.0)
+
+
+def test_the_real_autopilots_arms_keep_20_starts_and_checks_elsewhere(tmp_path: Path) -> None:
+    assert run.kept_path("expert-lead-px4-real-speed-0.5", 20, tmp_path, planned=run.REAL_STARTS).parent == run.EPISODES
+    assert run.kept_path("expert-lead-px4-real-speed-0.5", 2, tmp_path, planned=run.REAL_STARTS).is_relative_to(tmp_path)
+    assert run.parser().parse_args(["fly-real", "px4", "0.5"]).episodes == 20
+    assert run.REAL_ARMS["expert-lead"] == run.EXPERT and run.REAL_ARMS["precland"] == run.PRECLAND

@@ -8,6 +8,7 @@ Steps, each resumable on its own (a step whose kept output exists is skipped):
     python results/moving-pad/sweep/run.py configs                  # the task's config files, from configs/paper.toml
     python results/moving-pad/sweep/run.py fly precland-px4 0.5     # one arm at one pad speed (m/s)
     python results/moving-pad/sweep/run.py fly-real ardupilot 1.0   # precision landing on a real autopilot's SITL
+                                                                    # (--arm expert-lead: the leading expert there)
     python results/moving-pad/sweep/run.py policies 0.5             # Demo@20 / CoL@20 / CoL+@20, P1-P4 x replicates 0-1,
                                                                     # trained at that speed, then each flown on the board
                                                                     # inked into the pad (--board aruco: the first board)
@@ -169,11 +170,15 @@ def policies_config_path(speed: str) -> Path:
     return CONFIGS / f"policies-{speed}.toml"
 
 
-def header(name: str, speed: str, what: str) -> str:
-    return (f"# {name}: the pad-speed sweep (docs/baselines.md, \"Where learning wins\", and its Amendment 1),\n"
-            f"# the pad driving at {speed} m/s straight on, its direction uniform per episode; {what}.\n"
+def header(name: str, speed: str, what: str, written_by: str = "") -> str:
+    """The file's opening comment; ``written_by``: the step that writes it, when not ``configs``."""
+    made = (f"# Written by `python results/moving-pad/sweep/run.py {written_by}` (rerun that, do not edit).\n#\n"
+            if written_by else
             "# Written by `python results/moving-pad/sweep/run.py configs` from configs/paper.toml (rerun that,\n"
             "# do not edit). Below: configs/paper.toml with the sweep's keys set.\n#\n")
+    amended = "Amendments" if written_by else "Amendment 1"  # the configs step's files stay as they were written
+    return (f"# {name}: the pad-speed sweep (docs/baselines.md, \"Where learning wins\", and its {amended}),\n"
+            f"# the pad driving at {speed} m/s straight on, its direction uniform per episode; {what}.\n" + made)
 
 
 def task_text(paper: str, speed: str) -> str:
@@ -303,10 +308,10 @@ def speed_name(text: str) -> str:
     raise argparse.ArgumentTypeError(f"the sweep's speeds are {', '.join(SPEEDS)} m/s, not {text}")
 
 
-def kept_path(name: str, episodes: int, runs: Path) -> Path:
-    """Where a run's episodes are kept: episodes/ for the plan's 100 starts, the runs folder's
-    checks/ for a smaller check (never committed)."""
-    return EPISODES / f"{name}.jsonl" if episodes == STARTS else runs / "checks" / f"{name}-{episodes}.jsonl"
+def kept_path(name: str, episodes: int, runs: Path, planned: int = STARTS) -> Path:
+    """Where a run's episodes are kept: episodes/ for the plan's ``planned`` starts, the runs
+    folder's checks/ for a smaller check (never committed)."""
+    return EPISODES / f"{name}.jsonl" if episodes == planned else runs / "checks" / f"{name}-{episodes}.jsonl"
 
 
 def _run(cmd: list[str], log: Path) -> None:
@@ -387,29 +392,36 @@ def fly_external(arm: str, speed: str, run_dir: Path, episodes: int, log: Path) 
 
 
 REAL_SPEEDUP = {"ardupilot": 5.0, "px4": 4.0}  # as the real-autopilot tests run them (docs/link.md)
+REAL_STARTS = 20  # the plan: 20 starts an arm and speed on a real autopilot's SITL
+REAL_ARMS = {"precland": PRECLAND, "expert-lead": EXPERT}  # Amendment 4: on the board in the colour pad
 
 
-def real_config_path(speed: str) -> Path:
-    return CONFIGS / f"real-precland-speed-{speed}.toml"
+def real_config_path(speed: str, arm: str = "precland") -> Path:
+    return CONFIGS / f"real-{arm}-speed-{speed}.toml"
 
 
-def real_config_text(speed: str) -> str:
-    """Precision landing on a real autopilot's SITL: the board drawn by the rendered camera (from
-    the SITL's truth) on a pad that drives as the sweep's does, from each episode's hand-over, in
-    the SITL's own wind at the task's level where it has one (docs/link.md)."""
-    return header(real_config_path(speed).name, speed, "a real autopilot's SITL, the rendered camera, the ArUco board") + f"""
+def real_config_text(speed: str, arm: str = "precland") -> str:
+    """A real autopilot's SITL: the board in the colour pad (Amendment 3) drawn by the rendered
+    camera (from the SITL's truth) on a pad that drives as the sweep's does, from each episode's
+    hand-over, in the SITL's own wind at the task's level where it has one, the touchdown its
+    truth's first ground contact (docs/link.md; Amendment 4); the leading expert for its arm."""
+    lead = '\n[companion.pilot]\nlead_moving_pad = true  # the leading expert (Amendment 1)\n' if arm == "expert-lead" else ""
+    what = "the rendered camera, the ArUco board in the colour pad" + (", the leading expert" if lead else "")
+    return header(real_config_path(speed, arm).name, speed, f"a real autopilot's SITL, {what}",
+                  f"fly-real AUTOPILOT {speed} --arm {arm}") + lead + f"""
 [companion.session]
 clock = "vehicle"  # the autopilot runs faster than real time: steps by its time_boot_ms
 pad_ned_m = [0.0, 0.0, 0.0]  # the pad on the autopilot's own ground
 start_height_above_pad_m = 8.0  # our SITL's start box
 start_xy_range_m = 3.0
 autopilot_sim_disturbance = true  # its SITL's wind and turbulence at the level, the rendered pad's drive
+touchdown_by_truth_contact = true  # the rendered pad is no surface: first ground contact by the SITL's truth (Amendment 4)
 
 [companion.perception]
 camera = "render"
 
 [sitl.camera]
-pad_marker = "aruco"
+pad_marker = "aruco-disc"
 
 [sitl.world]
 vehicle_height_m = 0.0
@@ -420,33 +432,34 @@ vehicle_speed_max_m_s = {toml_value(speed_max(speed))}  # x level {LEVEL} = {spe
 """
 
 
-def fly_real(autopilot: str, speed: str, episodes: int, runs: Path) -> None:
-    """The autopilot's own precision landing on a real autopilot's SITL (the plan's "at one or two
-    speeds also on real ArduCopter / PX4 SIH with the rendered camera"): started fresh at its
-    speed-up, ArduCopter's PLND_* with the moving-target option set (and rebooted) as in our
-    SITL's arm, then ``col fly --pilot precland``; the parameters read back afterwards."""
+def fly_real(autopilot: str, speed: str, episodes: int, runs: Path, arm: str = "precland") -> None:
+    """One arm on a real autopilot's SITL (the plan's "at 0.5 and 1.0 m/s the PX4 precland and the
+    expert also fly real PX4 SIH and real ArduCopter with the rendered camera"): started fresh at
+    its speed-up; for precision landing ArduCopter's PLND_* with the moving-target option set (and
+    rebooted) as in our SITL's arm, then ``col fly --pilot precland`` (the parameters read back
+    afterwards); for ``expert-lead`` the leading expert on the same pad."""
     from companion.testing.autopilots import find_autopilots, start_ardupilot, start_px4
 
-    name = f"precland-{autopilot}-real-speed-{speed}"
-    kept = kept_path(name, episodes, runs)
+    name = f"{arm}-{autopilot}-real-speed-{speed}"
+    kept = kept_path(name, episodes, runs, planned=REAL_STARTS)
     if kept.exists():
         print(f"{_rel(kept)} exists: {name} done")
         return
     root, why = find_autopilots()
     if root is None:
         raise SystemExit(why)
-    config = real_config_path(speed)
-    config.write_text(real_config_text(speed))
-    run_dir = runs / name if episodes == STARTS else runs / "checks" / f"{name}-{episodes}"
+    config = real_config_path(speed, arm)
+    config.write_text(real_config_text(speed, arm))
+    run_dir = runs / name if episodes == REAL_STARTS else runs / "checks" / f"{name}-{episodes}"
     shutil.rmtree(run_dir, ignore_errors=True)
-    params = PLND_MOVING_TARGET if autopilot == "ardupilot" else ()
+    params = PLND_MOVING_TARGET if autopilot == "ardupilot" and arm == "precland" else ()
     start = start_ardupilot if autopilot == "ardupilot" else start_px4
     with start(root, runs / "autopilots" / name, speedup=REAL_SPEEDUP[autopilot]) as ap:
         prepared = prepare_vehicle(ap.connection, params) if params else {}
-        _run([col(), "fly", *PRECLAND, "--config", _rel(config), "--episodes", str(episodes), "--seed", str(FIRST_START),
+        _run([col(), "fly", *REAL_ARMS[arm], "--config", _rel(config), "--episodes", str(episodes), "--seed", str(FIRST_START),
               "--run-dir", _rel(run_dir), "--no-pictures", "--connect", ap.connection], run_dir.parent / f"{run_dir.name}.log")
         after = read_params(ap.connection, [n for n, _, _ in params]) if params else {}
-    note = {"autopilot": autopilot, "speedup": REAL_SPEEDUP[autopilot], "config": _rel(config),
+    note = {"autopilot": autopilot, "arm": arm, "speedup": REAL_SPEEDUP[autopilot], "config": _rel(config),
             "params_set": {n: v for n, v, _ in params}, **prepared, "params_after_run": after}
     (run_dir / "external_sitl.json").write_text(json.dumps(note, indent=1, sort_keys=True) + "\n")
     if any(after.get(n) != v for n, v, _ in params):
@@ -728,10 +741,11 @@ def parser() -> argparse.ArgumentParser:
     one.add_argument("arm", choices=tuple(ARMS))
     one.add_argument("speed", type=speed_name)
     one.add_argument("--episodes", type=int, default=STARTS, help="a check: this many starts (kept under the runs folder)")
-    real = sub.add_parser("fly-real", help="precision landing on a real autopilot's SITL, the rendered camera")
+    real = sub.add_parser("fly-real", help="precision landing or the leading expert on a real autopilot's SITL, the rendered camera")
     real.add_argument("autopilot", choices=tuple(REAL_SPEEDUP))
     real.add_argument("speed", type=speed_name)
-    real.add_argument("--episodes", type=int, default=STARTS, help="a check: this many starts (kept under the runs folder)")
+    real.add_argument("--arm", choices=tuple(REAL_ARMS), default="precland")
+    real.add_argument("--episodes", type=int, default=REAL_STARTS, help="a check: this many starts (kept under the runs folder)")
     pol = sub.add_parser("policies", help="the grid of one speed, then its policies on a marked pad")
     pol.add_argument("speed", type=speed_name)
     pol.add_argument("--conditions", type=parse_conditions, default=None, help="e.g. demo,col,colplus (default: the config's)")
@@ -759,7 +773,7 @@ def main() -> None:
     elif args.step == "fly":
         fly(args.arm, args.speed, args.episodes, runs)
     elif args.step == "fly-real":
-        fly_real(args.autopilot, args.speed, args.episodes, runs)
+        fly_real(args.autopilot, args.speed, args.episodes, runs, args.arm)
     elif args.step == "policies":
         policies(args.speed, args.conditions, args.episodes, runs, args.workers, args.board)
     elif args.step == "verify":

@@ -32,6 +32,14 @@ ARMS = {
     "expert": "scripted expert, colour pad",
     "expert-lead": "leading expert (lead_moving_pad), colour pad",
 }
+# Amendment 4: on a real autopilot's SITL (20 starts, 0.5 and 1.0 m/s), scored by the SITL's truth
+REAL_ARMS = {
+    "precland-ardupilot-real": "precland, real ArduCopter, PLND with the moving-target option",
+    "precland-px4-real": "precland, real PX4 SIH",
+    "expert-lead-ardupilot-real": "leading expert, real ArduCopter",
+    "expert-lead-px4-real": "leading expert, real PX4 SIH",
+}
+REAL_SPEEDS = ("0.5", "1.0")
 # The precision-landing arms each pad's policies are asked against: the colour pad's against the
 # first board's arms (the plan), the board inked into the pad's against the same pad (Amendment 3)
 PRECLAND_FOR_PAD = {"colour": ("precland-px4", "precland-ardupilot"),
@@ -56,14 +64,15 @@ def read(path: Path) -> list[dict[str, Any]]:
 
 
 def scan(folder: Path) -> tuple[dict[str, dict[str, list[dict]]], dict[str, dict[str, dict[str, dict[str, list[dict]]]]]]:
-    """The kept episodes: arms[speed][arm] and policies[speed][condition][pad][trial key]."""
+    """The kept episodes: arms[speed][arm] (the real autopilots' arms among them) and
+    policies[speed][condition][pad][trial key]."""
     arms: dict[str, dict[str, list[dict]]] = {}
     policies: dict[str, dict[str, dict[str, dict[str, list[dict]]]]] = {}
     for path in sorted(folder.glob("*.jsonl")) if folder.is_dir() else []:
         if m := POLICY_FILE.fullmatch(path.stem):
             cell = policies.setdefault(m["speed"], {}).setdefault(m["cond"], {}).setdefault(m["pad"], {})
             cell[m["key"]] = read(path)
-        elif (m := ARM_FILE.fullmatch(path.stem)) and m["arm"] in ARMS:
+        elif (m := ARM_FILE.fullmatch(path.stem)) and (m["arm"] in ARMS or m["arm"] in REAL_ARMS):
             arms.setdefault(m["speed"], {})[m["arm"]] = read(path)
     return arms, policies
 
@@ -74,16 +83,17 @@ def pct(x: float) -> float:
     return round(100.0 * x, 2)
 
 
-def describe(records: list[dict]) -> dict[str, Any]:
+def describe(records: list[dict], distance: str = "touchdown_distance_m") -> dict[str, Any]:
     """Success with a 95 % Wilson interval, outcomes (fence exits and timeouts among them),
-    touchdown distance (median, p90) and time to land (median, simulated s) over touchdowns."""
+    touchdown distance (median, p90; ``distance``: the record's field, the truth's on a real
+    autopilot's SITL) and time to land (median, simulated s) over touchdowns."""
     n = len(records)
     wins = sum(1 for r in records if r["success"])
     outcomes: dict[str, int] = {}
     for r in records:
         outcomes[r["outcome"]] = outcomes.get(r["outcome"], 0) + 1
-    down = [r for r in records if r["outcome"] == "touchdown" and r.get("touchdown_distance_m") is not None]
-    distances = sorted(float(r["touchdown_distance_m"]) for r in down)
+    down = [r for r in records if r["outcome"] == "touchdown" and r.get(distance) is not None]
+    distances = sorted(float(r[distance]) for r in down)
     low, high = wilson_interval(wins, n)
     return {
         "episodes": n, "successes": wins,
@@ -128,6 +138,7 @@ def expected_trial_keys(condition: str) -> list[str]:
 def missing(arms: dict, policies: dict) -> list[str]:
     """What the plan has that is not kept yet: arm x speed, and trial x pad x speed."""
     out = [f"{arm} at {s} m/s" for s in SPEEDS for arm in ARMS if arm not in arms.get(s, {})]
+    out += [f"{arm} at {s} m/s" for s in REAL_SPEEDS for arm in REAL_ARMS if arm not in arms.get(s, {})]
     conditions = sorted(set(PLANNED_CONDITIONS) | {c for cells in policies.values() for c in cells})
     for s in SPEEDS:
         for cond in conditions:
@@ -145,7 +156,9 @@ def summary(folder: Path = EPISODES) -> dict[str, Any]:
     speeds: dict[str, Any] = {}
     for s in SPEEDS:
         speeds[s] = {
-            "arms": {arm: describe(recs) for arm, recs in arms.get(s, {}).items()},
+            "arms": {arm: describe(recs) for arm, recs in arms.get(s, {}).items() if arm in ARMS},
+            "real_arms": {arm: describe(recs, "true_touchdown_distance_m")
+                          for arm, recs in arms.get(s, {}).items() if arm in REAL_ARMS},
             "policies": {cond: {pad: policy_cell(trials) for pad, trials in pads.items()}
                          for cond, pads in sorted(policies.get(s, {}).items())},
         }
@@ -283,6 +296,16 @@ def table(s: dict) -> str:
                       "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
             for cond, pads in block["policies"].items():
                 lines += [_policy_row(f"{CONDITIONS.get(cond, cond)}, {PADS[pad]}", c) for pad, c in pads.items()]
+        lines.append("")
+    real = [(speed, arm, block["real_arms"][arm]) for speed, block in s["speeds"].items()
+            for arm in REAL_ARMS if arm in block.get("real_arms", {})]
+    if real:
+        lines += ["## On the real autopilots' SITL (Amendment 4)", "",
+                  "20 starts an arm and speed, the rendered camera, the board in the colour pad, the touchdown the SITL's "
+                  "truth's first ground contact, success and distance by that truth (not part of the question).", "",
+                  "| arm | pad speed m/s | success | outcomes | touchdown distance m (truth), median / p90 | time to land s, "
+                  "median | fence exits | timeouts |", "| --- | ---: | ---: | --- | ---: | ---: | ---: | ---: |"]
+        lines += [_arm_row(REAL_ARMS[arm], row).replace(" | ", f" | {speed} | ", 1) for speed, arm, row in real]
         lines.append("")
     lines += ["## Not run yet", ""] + ([f"- {m}" for m in s["missing"]] or ["- nothing: the sweep is complete"])
     return "\n".join(lines) + "\n"
