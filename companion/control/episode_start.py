@@ -178,7 +178,7 @@ class EpisodeStart:
             ask_for_truth(port.link, snap.autopilot, self.parts.truth_rate_hz)
         if self.parts.autopilot_sim is not None:
             notes += self.parts.autopilot_sim.prepare_episode(port.link, snap.autopilot, 0 if seed is None else seed)
-        if not snap.in_air:
+        if not snap.in_air or not snap.armed:  # disarmed is on the ground, whatever a stale landed state says
             if self.truth_ground is not None:
                 self._measure_ground(snap)
             snap = self._take_off()

@@ -52,6 +52,7 @@ from companion.msg.episode import EpisodeRecord
 from companion.msg.snapshot import VehicleSnapshot
 
 log = logging.getLogger(__name__)
+STAND_DOWN_FRAMES = 50  # frames (about 5 s) for the vehicle to say it is disarmed after a forced disarm
 LATENCIES_KEPT = 10_000  # about 16 min of control steps at 10.5 Hz
 
 
@@ -160,10 +161,14 @@ class EpisodeRunner:
         pad it follows drives on): disarmed, forced, so the next start takes off from the ground."""
         try:
             self.p.link.force_disarm()
+            for _ in range(STAND_DOWN_FRAMES):  # its HEARTBEAT (1 Hz) says so before the next start looks
+                snap = self.port.next_snapshot()
+                if snap is not None and not snap.armed:
+                    return "disarmed (forced) after the truth's touchdown"
         except ColError as exc:
             log.error("could not disarm after the truth's touchdown: %s", exc)
             return f"not disarmed after the truth's touchdown: {exc}"
-        return "disarmed (forced) after the truth's touchdown"
+        return "disarm forced after the truth's touchdown, but the vehicle still said armed"
 
     def _leave_safe_after_error(self) -> None:
         """On a vehicle that flies to its starts; a simulator's reset takes the vehicle over anyway
