@@ -242,6 +242,8 @@ ADDED_LATER: dict[tuple[str, str], object] = {
     ("session", "sih_mass_scale"): 1.0,
     ("session", "sih_drag_scale"): 1.0,
     ("session", "policy_pad_ned_m"): None,
+    ("session", "touchdown_by_truth_contact"): False,
+    ("session", "truth_contact_m"): 0.05,
 }
 """Companion settings added after results were committed, with the default that behaves as
 before them (one network; every learner switch of docs/learner.md off; no signing; the run's
