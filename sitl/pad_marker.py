@@ -51,7 +51,6 @@ QUIET_TEXELS = 30  # white around a marker on the roof: ArUco finds a marker by 
 CLEARANCE_M = 0.02  # light around a marker inked into the dot or the disc, up to their edges
 
 Surface = Literal["white", "dot", "disc"]
-BOARDS = ("aruco", "aruco-disc")
 
 
 @dataclass(frozen=True)
@@ -128,11 +127,27 @@ def _aruco_disc() -> tuple[Marker, ...]:
     return tuple(markers)
 
 
-LAYOUTS: dict[str, tuple[Marker, ...]] = {"aruco": _aruco(), "aruco-disc": _aruco_disc()}
+@dataclass(frozen=True)
+class Layout:
+    """A board: its markers, and whether one white square lies under all of them, over the pad
+    (the first board) or each roof marker has its own, clear of the pad (a board inked into it)."""
+
+    markers: tuple[Marker, ...]
+    covers_pad: bool
+
+
+LAYOUTS: dict[str, Layout] = {"aruco": Layout(_aruco(), covers_pad=True),
+                              "aruco-disc": Layout(_aruco_disc(), covers_pad=False)}
+BOARDS: tuple[str, ...] = tuple(LAYOUTS)
 
 
 def markers(name: str) -> tuple[Marker, ...]:
     """The markers of the board ``name`` (one of :data:`BOARDS`); ValueError naming them."""
+    return layout(name).markers
+
+
+def layout(name: str) -> Layout:
+    """The board ``name`` (one of :data:`BOARDS`); ValueError naming them."""
     try:
         return LAYOUTS[name]
     except KeyError:
@@ -141,10 +156,10 @@ def markers(name: str) -> tuple[Marker, ...]:
 
 def _white_boxes(name: str) -> list[tuple[float, float, float, float]]:
     """(north max, west, north min, east) of each white square the board prints on the roof,
-    quiet zone included: one under the whole ``aruco`` board, one per roof marker otherwise."""
+    quiet zone included: one under the whole board that covers the pad, one per roof marker otherwise."""
     quiet = QUIET_TEXELS * TEXEL_M
     on_white = [m for m in markers(name) if m.surface == "white"]
-    if name == "aruco":
+    if layout(name).covers_pad:
         corners = np.concatenate([m.corners_m() for m in on_white])
         half_n, half_e = np.abs(corners[:, 0]).max() + quiet, np.abs(corners[:, 1]).max() + quiet
         return [(float(half_n), float(-half_e), float(-half_n), float(half_e))]
@@ -189,7 +204,7 @@ def check_fits(name: str, length_m: float, width_m: float, pad_radius_m: float, 
 def _surface_problem(name: str, m: Marker, pad_radius_m: float, dot_radius_m: float) -> str:
     """What keeps marker ``m`` off the surface it is printed on ('' when nothing): a marker in the
     dot must lie inside it, one on the disc between dot and rim, and a roof marker's white square
-    of a board inked into the pad must leave the disc alone (``aruco`` covers it by design)."""
+    of a board inked into the pad must leave the disc alone (a board that covers the pad may)."""
     clear = CLEARANCE_M
     if m.surface == "dot" and m.reach_m() + clear > dot_radius_m:
         return f"marker {m.marker_id} lies in the white dot: [sitl.camera] pad_dot_radius_m >= {m.reach_m() + clear:.3f} needed, it is {dot_radius_m}"
@@ -198,7 +213,7 @@ def _surface_problem(name: str, m: Marker, pad_radius_m: float, dot_radius_m: fl
     if m.surface == "disc" and m.nearest_m() - clear < dot_radius_m:
         return f"marker {m.marker_id} lies outside the dot: [sitl.camera] pad_dot_radius_m <= {m.nearest_m() - clear:.3f} needed, it is {dot_radius_m}"
     quiet = QUIET_TEXELS * TEXEL_M
-    if m.surface == "white" and name != "aruco" and m.nearest_m() - quiet < pad_radius_m:
+    if m.surface == "white" and not layout(name).covers_pad and m.nearest_m() - quiet < pad_radius_m:
         return f"marker {m.marker_id}'s white square would cover the disc: [sitl.world] pad_radius_m <= {m.nearest_m() - quiet:.3f} needed, it is {pad_radius_m}"
     return ""
 
