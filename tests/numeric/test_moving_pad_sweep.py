@@ -258,3 +258,15 @@ def test_the_real_autopilots_arms_keep_20_starts_and_checks_elsewhere(tmp_path: 
     assert run.kept_path("expert-lead-px4-real-speed-0.5", 2, tmp_path, planned=run.REAL_STARTS).is_relative_to(tmp_path)
     assert run.parser().parse_args(["fly-real", "px4", "0.5"]).episodes == 20
     assert run.REAL_ARMS["expert-lead"] == run.EXPERT and run.REAL_ARMS["precland"] == run.PRECLAND
+
+
+def test_a_grid_trained_again_is_kept_beside_the_first_not_over_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(run, "POLICIES", tmp_path / "policies")
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "results.jsonl").write_text('{"first": true}\n')
+    assert run.keep_grid(out, "0.5") == tmp_path / "policies" / "0.5"
+    (out / "results.jsonl").write_text('{"again": true}\n')
+    assert run.keep_grid(out, "0.5") == tmp_path / "policies" / "0.5" / "retrained"
+    assert (tmp_path / "policies" / "0.5" / "results.jsonl").read_text() == '{"first": true}\n'
+    assert (tmp_path / "policies" / "0.5" / "retrained" / "results.jsonl").read_text() == '{"again": true}\n'

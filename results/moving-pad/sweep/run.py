@@ -584,8 +584,11 @@ def strip_paths(text: str) -> str:
 
 def keep_grid(out: Path, speed: str) -> Path:
     """The grid's lines and settings into policies/SPEED/ (with its records: ``--verify`` reruns
-    from that folder in the environment they name)."""
+    from that folder in the environment they name); a grid trained again (its lines checked equal
+    to the kept ones) into policies/SPEED/retrained/, so the first run's records stay as they were."""
     folder = POLICIES / speed
+    if (folder / "results.jsonl").exists():
+        folder = folder / "retrained"
     folder.mkdir(parents=True, exist_ok=True)
     for name in ("results.jsonl", "timings.jsonl", "config.toml", "experiment.json", "environment.jsonl", "report.md"):
         if (out / name).exists():
