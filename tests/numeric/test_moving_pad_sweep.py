@@ -270,3 +270,20 @@ def test_a_grid_trained_again_is_kept_beside_the_first_not_over_it(tmp_path: Pat
     assert run.keep_grid(out, "0.5") == tmp_path / "policies" / "0.5" / "retrained"
     assert (tmp_path / "policies" / "0.5" / "results.jsonl").read_text() == '{"first": true}\n'
     assert (tmp_path / "policies" / "0.5" / "retrained" / "results.jsonl").read_text() == '{"again": true}\n'
+
+
+def test_records_keep_every_line_already_kept_when_a_run_folder_holds_another_run(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    here, episodes, runs = tmp_path / "here", tmp_path / "episodes", tmp_path / "runs"
+    here.mkdir(), episodes.mkdir(), (runs / "expert-speed-0").mkdir(parents=True)
+    monkeypatch.setattr(run, "HERE", here)
+    monkeypatch.setattr(run, "EPISODES", episodes)
+    (episodes / "expert-speed-0.jsonl").write_text("{}\n")
+    first = json.dumps({"arm": "expert-speed-0", "commit": "a"}, sort_keys=True)
+    (here / "environment.jsonl").write_text(first + "\n")
+    (runs / "expert-speed-0" / "environment.jsonl").write_text(json.dumps({"commit": "b"}) + "\n")
+    run.environment_records(runs)
+    lines = (here / "environment.jsonl").read_text().splitlines()
+    assert lines[0] == first and json.loads(lines[1]) == {"arm": "expert-speed-0", "commit": "b"}
+    run.environment_records(runs)  # again: nothing doubled
+    assert (here / "environment.jsonl").read_text().splitlines() == lines

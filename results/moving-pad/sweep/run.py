@@ -707,7 +707,7 @@ def tagged_records(folder: Path, arm: str) -> list[str]:
 
 def environment_records(runs: Path) -> None:
     """``environment.jsonl`` here: the configs step's lines, then every kept run's records
-    (tagged with its arm; a grid's once), machine paths stripped."""
+    (tagged with its arm; a grid's once), machine paths stripped; no line already here is lost."""
     path = HERE / "environment.jsonl"
     old = [line for line in (path.read_text().splitlines() if path.exists() else []) if line.strip()]
     lines = [line for line in old if json.loads(line).get("step") == "configs"]
@@ -717,8 +717,10 @@ def environment_records(runs: Path) -> None:
         if found[1] in seen:
             continue
         seen.add(found[1])
-        # a run folder gone (another machine, a cleaned runs/): its arm's lines already here stay
-        lines += tagged_records(*found) or [line for line in old if json.loads(line).get("arm") == found[1]]
+        # an arm's lines already here stay (its run folder gone, or run again: a retrained grid),
+        # and its folder's lines not here yet are added
+        here = [line for line in old if json.loads(line).get("arm") == found[1]]
+        lines += here + [line for line in tagged_records(*found) if line not in here]
     path.write_text("\n".join(lines) + "\n")
     print(f"{len(lines)} records in {_rel(path)}")
 
