@@ -9,6 +9,11 @@ autopilots faster than real time"), with margin for CI's load. ``COL_AUTOPILOT_S
 from __future__ import annotations
 
 import os
+from pathlib import Path
+
+import pytest
+
+from companion.testing.autopilots import find_autopilots
 
 
 def _speedups(text: str) -> dict[str, float]:
@@ -18,3 +23,14 @@ def _speedups(text: str) -> dict[str, float]:
 
 
 SPEEDUP = {"px4": 4.0, "ardupilot": 5.0} | _speedups(os.environ.get("COL_AUTOPILOT_SPEEDUP", ""))
+
+
+def autopilots_root() -> Path:
+    """The prebuilt autopilots' folder; without it the test skips and says how to get them, or
+    fails where ``COL_REQUIRE_AUTOPILOTS=1`` (set by .ci/run)."""
+    root, why = find_autopilots()
+    if root is None:
+        if os.environ.get("COL_REQUIRE_AUTOPILOTS") == "1":
+            pytest.fail(why)
+        pytest.skip(why)
+    return root

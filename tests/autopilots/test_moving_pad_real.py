@@ -11,7 +11,6 @@ driving at 1 m/s, from 2.5 m, at the speed-up the other real-autopilot tests use
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from companion.control.touchdown import TRUTH_CONTACT_NOTE
-from companion.testing.autopilots import find_autopilots, start_ardupilot
-from tests.autopilots import SPEEDUP
+from companion.testing.autopilots import start_ardupilot
+from tests.autopilots import SPEEDUP, autopilots_root
 
 pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
 COL = str(Path(sys.executable).with_name("col"))
@@ -46,11 +45,7 @@ vehicle_velocity_ne_m_s = [0.8, 0.6]
 
 @pytest.fixture(scope="module")
 def records(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[dict], str]:
-    root, why = find_autopilots()
-    if root is None:
-        if os.environ.get("COL_REQUIRE_AUTOPILOTS") == "1":
-            pytest.fail(why)
-        pytest.skip(why)
+    root = autopilots_root()
     work = tmp_path_factory.mktemp("moving-pad-real")
     config = work / "moving.toml"
     config.write_text(CONFIG)

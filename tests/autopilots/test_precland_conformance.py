@@ -23,13 +23,12 @@ import pytest
 from companion.simulator import start_sitl
 from companion.testing.autopilots import (
     PX4_LOCAL_PORTS,
-    find_autopilots,
     free_udp_port,
     start_ardupilot,
     start_px4,
 )
 from companion.testing.conformance import PrecLandOutcome, fly_precland
-from tests.autopilots import SPEEDUP
+from tests.autopilots import SPEEDUP, autopilots_root
 
 pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
 KINDS = ("px4", "ardupilot")
@@ -43,11 +42,7 @@ REAL_PX4_NEAR_M = 1.5
 
 @pytest.fixture(scope="module")
 def outcomes(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, PrecLandOutcome]]:
-    root, why = find_autopilots()
-    if root is None:
-        if os.environ.get("COL_REQUIRE_AUTOPILOTS") == "1":
-            pytest.fail(why)
-        pytest.skip(why)
+    root = autopilots_root()
     work = tmp_path_factory.mktemp("precland")
     real = {"px4": start_px4(root, work / "px4", speedup=SPEEDUP["px4"]),
             "ardupilot": start_ardupilot(root, work / "ardupilot", speedup=SPEEDUP["ardupilot"])}

@@ -41,14 +41,16 @@ from pymavlink import mavutil
 from companion.simulator import start_sitl
 from companion.testing.autopilots import (
     RunningAutopilot,
-    find_autopilots,
     free_udp_port,
     start_ardupilot,
     start_px4,
 )
 from companion.testing.conformance import Outcome, differences, fly_script
 from companion.testing.vehicle_time import TlogClock, VehicleClock, wall_cap_s
-from tests.autopilots import SPEEDUP  # times real time, each autopilot and our SITL as it
+from tests.autopilots import (  # times real time, each autopilot and our SITL as it
+    SPEEDUP,
+    autopilots_root,
+)
 
 # one xdist worker runs this group in turn: real PX4 SIH lost the companion ("Connection to
 # mission computer lost") beside the CPU-bound trial reruns
@@ -260,11 +262,7 @@ def _write_report(results: dict[str, Scenario], started_s: float) -> None:
 
 @pytest.fixture(scope="module")
 def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Scenario]]:
-    root, why = find_autopilots()
-    if root is None:
-        if os.environ.get("COL_REQUIRE_AUTOPILOTS") == "1":
-            pytest.fail(why)
-        pytest.skip(why)
+    root = autopilots_root()
     work = tmp_path_factory.mktemp("autopilots")
     configs = {kind: work / f"short-{kind}.toml" for kind in KINDS}
     for kind, path in configs.items():
