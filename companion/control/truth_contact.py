@@ -10,9 +10,11 @@ truth sample within ``contact_m`` of the ground is the touchdown, scored against
 pad where it is at that moment (companion/control/outcome.py).
 
 The ground is where the truth puts the vehicle standing disarmed before a take-off: ArduCopter
-SITL's truth is the local origin's altitude there to 0.1 mm, PX4 SIH's 0.44 m below it in one boot
-(its origin's altitude is a noisy GPS fix), so the level is measured, not assumed. Only a SITL
-has truth, so :func:`stand_down` may force the disarm that ends such an episode.
+SITL's truth is the local origin's altitude there to 0.1 mm, PX4 SIH's 0.35 m off it in one boot
+and not the same at the next (its origin's altitude is a noisy GPS fix;
+results/moving-pad/truth-ground/), so the level is
+measured, not assumed. Only a SITL has truth, so the session may force the disarm that ends such an
+episode (companion/control/session.py).
 """
 
 from __future__ import annotations

@@ -650,8 +650,8 @@ def test_the_policys_frame_moves_what_is_seen_and_recorded_not_what_is_judged(po
 
 
 class TruthLink(FlyToLink):
-    """A SITL's vehicle that sends its truth (0.44 m below the local origin on the ground, as PX4
-    SIH did) and whose land detector never fires once armed: on the ground it says LANDING, as
+    """A SITL's vehicle that sends its truth (0.44 m off the local origin on the ground: PX4
+    SIH's is off by another amount each boot) and whose land detector never fires once armed: on the ground it says LANDING, as
     real ArduCopter did chasing a rendered pad that drove on."""
 
     GROUND_DOWN_M = 0.44

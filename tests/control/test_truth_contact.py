@@ -18,7 +18,7 @@ from companion.link.home import HomeFrame
 from companion.msg.snapshot import VehicleSnapshot
 from companion.msg.true_pose import TruePose
 
-GROUND_DOWN_M = 0.44  # PX4 SIH: the truth stands this far below the local origin's altitude
+GROUND_DOWN_M = 0.44  # PX4 SIH's truth stands off the local origin's altitude, by another amount each boot
 
 
 def snap(true_down_m: float | None, *, armed: bool = True, landed: str = "LANDING", t_ms: int = 5000,
