@@ -42,7 +42,7 @@ from companion.control.precland import fly_precland
 from companion.control.records import StepView, episode_record, supervised_steps
 from companion.control.sequences import leave_safe
 from companion.control.step import StepPipeline
-from companion.control.touchdown import TRUTH_CONTACT_NOTE, VehicleTouchdown
+from companion.control.touchdown import Evidence, VehicleTouchdown
 from companion.control.truth_contact import TruthGround
 from companion.errors import ColError, LinkLost
 from companion.link.dialect import Dialect
@@ -65,7 +65,7 @@ class EpisodeRunner:
         self._tick_start_s: float | None = None
         self.step_latencies_s: deque[float] = deque(maxlen=LATENCIES_KEPT)
         """The latest steps' own compute times (bounded: a long run must not grow without end)."""
-        self._evidence_note: str | None = None
+        self._evidence: Evidence | None = None
         self.home = HomeFrame()
         """Home for heights and distances (companion/link/home.py), kept over the run."""
         self.touchdown = VehicleTouchdown(parts.landing, self.period_s, -parts.cfg.pad_ned_m[2], self.home,
@@ -127,7 +127,7 @@ class EpisodeRunner:
         snap: VehicleSnapshot | None = first
         outcome, version, steps = "timeout", None, 0
         try:
-            self._evidence_note = None
+            self._evidence = None
             if self.p.lander is not None:
                 outcome, steps, snap = fly_precland(
                     self.p.lander, self.port, self.dialect, snap, max_steps=self.p.cfg.max_steps,
@@ -136,9 +136,9 @@ class EpisodeRunner:
                 notes.append(self.p.lander.counts.note())
             else:
                 outcome, version, steps, snap = self._fly(episode, phase, snap, t0_ms)
-            if outcome == "touchdown" and self._evidence_note is not None:
-                notes.append(self._evidence_note)
-                if self._evidence_note == TRUTH_CONTACT_NOTE:
+            if outcome == "touchdown" and self._evidence is not None:
+                notes.append(self._evidence.note)
+                if self._evidence.stand_down:
                     notes.append(self._stand_down())
         except ColError as exc:
             log.error("episode %d ended by an error: %s", episode, exc)
@@ -238,7 +238,7 @@ class EpisodeRunner:
                                              self.truth_ground)
         if verdict.evidence is not None:
             log.warning("%s", verdict.evidence.message)
-            self._evidence_note = verdict.evidence.note
+            self._evidence = verdict.evidence
         elif verdict.fence_reason is not None:  # hold, and the hold mode, before the episode ends
             log.warning("geofence: %s; holding and ending the episode", verdict.fence_reason)
             self.port.hold_in(self.dialect.hold_mode)

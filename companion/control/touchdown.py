@@ -214,6 +214,9 @@ class Evidence:
 
     note: str = ""
     message: str = ""
+    stand_down: bool = False
+    """The vehicle's own land detector may never fire (a SITL's truth judged the contact): the
+    companion disarms it so the next start takes off from the ground."""
 
 
 def touchdown_evidence(snap: VehicleSnapshot, assist: TouchdownAssist | None,
@@ -227,7 +230,7 @@ def touchdown_evidence(snap: VehicleSnapshot, assist: TouchdownAssist | None,
     if ground is not None and ground.touching(snap):
         return Evidence(TRUTH_CONTACT_NOTE,
                         f"touchdown judged by the SITL's truth: ground contact, {ground.height_m(snap):.3f} m above "
-                        f"where the vehicle stood, while it said {snap.landed_state}")
+                        f"where the vehicle stood, while it said {snap.landed_state}", stand_down=True)
     if snap.landed_state == "UNDEFINED" and assist is not None and assist.standing_long_enough():
         return Evidence("touchdown judged by the companion: no landed state, standing",
                         "touchdown judged by the companion: the vehicle reports no landed state "

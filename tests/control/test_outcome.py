@@ -120,6 +120,7 @@ def test_a_vehicle_is_judged_by_its_landed_state_or_else_the_assists_evidence() 
     verdict = judge_vehicle(3, 10, silent, fence, home, standing_assist(silent, 10))  # 1 s of it
     assert verdict.outcome == TOUCHDOWN and verdict.evidence is not None
     assert verdict.evidence.note == "touchdown judged by the companion: no landed state, standing"
+    assert not verdict.evidence.stand_down  # standing on a real surface: its own detector lands it
 
 
 def test_a_vehicle_outside_the_fence_says_why_unless_it_stands() -> None:

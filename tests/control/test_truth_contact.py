@@ -64,6 +64,7 @@ def test_the_first_contact_ends_the_episode_as_a_touchdown_with_its_note() -> No
     verdict = judge_vehicle(3, 10, snap(GROUND_DOWN_M), fence, home, ground=measured())
     assert verdict.outcome == TOUCHDOWN and verdict.evidence is not None
     assert verdict.evidence.note == TRUTH_CONTACT_NOTE
+    assert verdict.evidence.stand_down  # the vehicle's own detector may never fire: the session disarms it
     assert "while it said LANDING" in verdict.evidence.message
     # not asked (no ground given): the vehicle's own landed state judges, as before
     assert judge_vehicle(3, 10, snap(GROUND_DOWN_M), fence, home) == Verdict(None)
