@@ -5,14 +5,13 @@ flies."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from colcommon.script_module import load_script
 from companion.experiment.grid import load_experiment
 from sitl.config import load_sitl_config
 
@@ -22,12 +21,7 @@ FIT = {"sitl_estimator": {"velocity_error_std_m_s": 0.21, "velocity_error_tau_s"
 
 
 def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("matched_run", MATCHED / "run.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(MATCHED / "run.py", "matched_run")
 
 
 run = _load()

@@ -16,7 +16,6 @@ episodes.jsonl (episodes/), the calibration's results and the summaries.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import shutil
 import statistics
@@ -26,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from colcommon.logged_run import run_logged
+from colcommon.script_module import load_script
 
 HERE = Path(__file__).resolve().parent
 TRANSFER = HERE.parent
@@ -46,16 +46,7 @@ vehicle_height_m = 0.0
 """
 
 
-def _transfer() -> Any:
-    """results/transfer/run.py, the table's own steps (its policies, seeds, configs, autopilots)."""
-    spec = importlib.util.spec_from_file_location("transfer_run", TRANSFER / "run.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-T = _transfer()
+T = load_script(TRANSFER / "run.py", "transfer_run")  # the table's own steps: its policies, seeds, configs, autopilots
 
 
 def _rel(path: Path) -> str:
