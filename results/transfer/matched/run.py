@@ -253,35 +253,33 @@ def table(s: dict[str, Any]) -> str:
 
 def summarise() -> None:
     s = summary()
-    (HERE / "summary.json").write_text(json.dumps(s, indent=1) + "\n")
-    (HERE / "table.md").write_text(table(s))
-    print(json.dumps({"written": ["summary.json", "table.md"],
-                      "flown": sum(v is not None for k, v in s["shares_pct"].items() if k.split("/")[1] in COLUMNS),
-                      "planned": len(T.POLICIES) * len(COLUMNS)}))
+    flown = sum(v is not None for k, v in s["shares_pct"].items() if k.split("/")[1] in COLUMNS)
+    T.write_summary(HERE, s, table(s), flown, len(T.POLICIES) * len(COLUMNS))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=Path, default=DEFAULT_RUNS, help="where run folders and logs go")
     sub = parser.add_subparsers(dest="step", required=True)
-    sub.add_parser("calibrate", help="the expert on PX4 SIH and in our SITL: fit.json")
-    sub.add_parser("configs", help="the columns' config files")
+    sub.add_parser("calibrate", help="the expert on PX4 SIH and in our SITL: fit.json").set_defaults(
+        go=lambda a: calibrate(a.runs))
+    sub.add_parser("configs", help="the columns' config files").set_defaults(go=lambda a: write_configs())
     p = sub.add_parser("fly", help="the 16 policies in one column")
     p.add_argument("column", choices=COLUMNS)
     p.add_argument("--policies", help="KEY,... (default: the plan's 16)")
-    p.add_argument("--episodes", type=int, default=T.EPISODES_EACH, help="a check with fewer goes to the runs folder's checks/")
-    sub.add_parser("summarise", help="summary.json and table.md")
+    p.add_argument("--episodes", type=episodes_count, default=T.EPISODES_EACH,
+                   help="a check with fewer goes to the runs folder's checks/")
+    p.set_defaults(go=lambda a: fly(a.column, T.parse_keys(a.policies), a.episodes, a.runs))
+    sub.add_parser("summarise", help="summary.json and table.md").set_defaults(go=lambda a: summarise())
     args = parser.parse_args()
-    if args.step == "calibrate":
-        calibrate(args.runs)
-    elif args.step == "configs":
-        write_configs()
-    elif args.step == "fly":
-        if args.episodes < 1:
-            raise SystemExit("--episodes must be at least 1")
-        fly(args.column, T.parse_keys(args.policies), args.episodes, args.runs)
-    else:
-        summarise()
+    args.go(args)
+
+
+def episodes_count(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError("--episodes must be at least 1")
+    return n
 
 
 if __name__ == "__main__":
