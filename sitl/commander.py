@@ -77,13 +77,13 @@ class Commander:
         """OFFBOARD, flying the latest setpoint (asked for, or the stream back after a loss)."""
         st = self.status
         st.mode = Mode.OFFBOARD
-        st.setpoint = st.latest_offboard_sp or hold_setpoint(self.v.state)
+        st.setpoint = st.latest_offboard_sp or hold_setpoint(self.v.estimate)
         st.failsafe_since_s = st.offboard_lost_s = None
 
     def enter(self, mode: Mode) -> None:
         """Enter ``mode`` with the setpoint it flies (hold/land/takeoff capture the pose now)."""
         v, st = self.v, self.status
-        s = v.state
+        s = v.estimate
         n, e, d = s.position_ned_m
         yaw = s.attitude_rad[2]
         if mode is not Mode.AUTO_LOITER:
@@ -122,7 +122,7 @@ class Commander:
         st.armed_at_s = v.time_s
         st.touchdown = None
         v.controller.reset()
-        st.setpoint = hold_setpoint(v.state) if st.mode is not Mode.OFFBOARD else st.setpoint
+        st.setpoint = hold_setpoint(v.estimate) if st.mode is not Mode.OFFBOARD else st.setpoint
         v.say(mavlink.MAV_SEVERITY_INFO, "Armed")
         return mavlink.MAV_RESULT_ACCEPTED, ""
 

@@ -60,6 +60,9 @@ class AutopilotConfig(Section):
     max_speed_down_m_s: float = Field(2.0, gt=0)
     max_tilt_rad: float = Field(0.6, gt=0, lt=1.2)
     max_yaw_rate_rad_s: float = Field(1.5, gt=0)
+    vel_cmd_tau_s: float = Field(
+        0.0, ge=0, le=10, description="first-order lag on the horizontal velocity command (0: none); a slower autopilot's response"
+    )
     land_speed_m_s: float = Field(0.7, gt=0)
     takeoff_alt_m: float = Field(2.5, gt=0)
     offboard_loss_hold_s: float = Field(1.0, gt=0, description="COM_OF_LOSS_T: no setpoint for this long -> hold (real PX4 SIH reads 1.0)")
@@ -204,10 +207,20 @@ class PersonalityConfig(Section):
 
 class EstimatorConfig(Section):
     """Where the estimator's local frame is (docs/sitl.md "Local frame"): PX4's origin is where
-    its estimator started, not the ground, so heights read on the ground are not 0."""
+    its estimator started, not the ground, so heights read on the ground are not 0; and how far
+    its horizontal estimate is off the truth (none by default)."""
 
     height_offset_m: float = Field(
         0.7, ge=-10, le=10, description="px4: reported LOCAL_POSITION_NED z = true z - this (on the ground the height reads +this); ardupilot: always 0 (origin = home)"
+    )
+    # The horizontal estimate error (sitl/estimate_error.py, docs/sitl.md "The estimate"): off (0)
+    # by default; PX4 SIH's, as measured, is about 0.21 m/s per axis.
+    velocity_error_std_m_s: float = Field(
+        0.0, ge=0, le=2, description="std per horizontal axis of the velocity estimate's error (Gauss-Markov); 0: the autopilot flies on the truth"
+    )
+    velocity_error_tau_s: float = Field(2.0, gt=0, le=600, description="time constant of the velocity error")
+    position_pull_tau_s: float = Field(
+        1.2, gt=0, le=600, description="the position error integrates the velocity error and returns to the truth with this time constant (GPS)"
     )
 
 

@@ -137,6 +137,7 @@ class _Gains:
     rate_p_yaw: float
     rate_i_yaw_dt: float
     rate_i_max_yaw: float
+    vel_cmd_blend: float  # share of the new horizontal velocity command taken each step (1: no lag)
 
     @classmethod
     def from_config(cls, cfg: AutopilotConfig, dt_s: float) -> _Gains:
@@ -167,6 +168,7 @@ class _Gains:
             cfg.rate_p_yaw,
             cfg.rate_i_yaw * dt_s,
             cfg.rate_i_max_yaw,
+            1.0 - math.exp(-dt_s / cfg.vel_cmd_tau_s) if cfg.vel_cmd_tau_s > 0 else 1.0,
         )
 
 
@@ -195,6 +197,7 @@ class FlightController:
         self._vel_int = [0.0, 0.0, 0.0]
         self._rate_int = [0.0, 0.0, 0.0]
         self._prev_rates = (0.0, 0.0, 0.0)
+        self._lagged_xy: tuple[float, float] | None = None  # the lagged horizontal velocity command
         self.lift_ratio = 1.0  # last collective thrust asked for, as a fraction of weight
         self.collective = 0.0  # last collective ESC command (before mixing)
 
@@ -233,8 +236,19 @@ class FlightController:
         if speed > g.max_xy_m_s:
             scale = g.max_xy_m_s / speed
             vn, ve = vn * scale, ve * scale
+        if g.vel_cmd_blend < 1.0:
+            vn, ve = self._lag_xy(vn, ve, state.velocity_ned_m_s)
         up, down = g.max_up_m_s, g.max_down_m_s
         return vn, ve, (-up if vd < -up else down if vd > down else vd)
+
+    def _lag_xy(self, vn: float, ve: float, velocity: tuple[float, float, float]) -> tuple[float, float]:
+        """The horizontal command through a first-order lag (``vel_cmd_tau_s``), which starts
+        from the velocity flown: an autopilot that answers a new velocity more slowly."""
+        lagged = self._lagged_xy if self._lagged_xy is not None else (velocity[0], velocity[1])
+        k = self._g.vel_cmd_blend
+        lagged = (lagged[0] + k * (vn - lagged[0]), lagged[1] + k * (ve - lagged[1]))
+        self._lagged_xy = lagged
+        return lagged
 
     def _acceleration(
         self, state: VehicleState, vel_cmd: tuple[float, float, float]

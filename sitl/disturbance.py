@@ -32,7 +32,8 @@ from sitl.dynamics import Atmosphere
 STREAM_EPISODE = 7  # generator streams: the per-episode draw,
 STREAM_ATTITUDE = 8  # the noise of the reported attitude and rates (per block of FDM steps),
 STREAM_NOISE_FIELD = 9  # the episode's pixel noise field,
-STREAM_NOISE_WINDOW = 10  # and where each frame's noise lies in it
+STREAM_NOISE_WINDOW = 10  # and where each frame's noise lies in it,
+STREAM_ESTIMATE = 11  # the autopilot's estimate error (sitl/estimate_error.py)
 JSBSIM_SEED_MAX = 2_147_483_646  # JSBSim's minstd generator: seeds 1 .. 2^31 - 2 are distinct
 _ATTITUDE_BLOCK_STEPS = 128  # attitude noise is drawn for this many FDM steps at a time
 _NOISE_LEVELS = 1 << 16  # pixel noise: uniform 16-bit draws mapped through a normal quantile table
@@ -44,7 +45,7 @@ def _entropy(seed: SeedLike) -> tuple[int, ...]:
     return (int(seed),) if isinstance(seed, (int, np.integer)) else tuple(int(s) for s in seed)
 
 
-def _rng(stream: int, seed: tuple[int, ...], *counter: int) -> np.random.Generator:
+def rng_of_stream(stream: int, seed: tuple[int, ...], *counter: int) -> np.random.Generator:
     """The generator of one stream of one episode (and one block or step). The seed's length
     is part of the key: numpy's SeedSequence would take (5,) and (5, 0) for the same seed."""
     return np.random.default_rng([stream, len(seed), *seed, *counter])
@@ -71,7 +72,7 @@ class EpisodeDisturbance:
     def draw(cls, cfg: DisturbanceConfig, seed: SeedLike) -> EpisodeDisturbance:
         """The episode's disturbance; the same (cfg, seed) always gives the same one."""
         entropy = _entropy(seed)
-        rng = _rng(STREAM_EPISODE, entropy)
+        rng = rng_of_stream(STREAM_EPISODE, entropy)
         # Always drawn, in this order, whatever the level: levels share their random parts.
         wind_dir, vehicle_dir = rng.uniform(0.0, 2.0 * math.pi, size=2)
         yaw_u = float(rng.uniform(-1.0, 1.0))
@@ -137,7 +138,7 @@ class EpisodeDisturbance:
             return image
         h, w = image.shape[:2]
         up, down = _noise_field(self.seed, self.image_noise_std, image.shape)
-        rng = _rng(STREAM_NOISE_WINDOW, self.seed, step)
+        rng = rng_of_stream(STREAM_NOISE_WINDOW, self.seed, step)
         top, left = (int(x) for x in rng.integers(0, (up.shape[0] - h + 1, up.shape[1] - w + 1)))
         return saturated_add(image, up[top:top + h, left:left + w], down[top:top + h, left:left + w])
 
@@ -157,7 +158,7 @@ def saturated_add(image: np.ndarray, up: np.ndarray, down: np.ndarray) -> np.nda
 def _attitude_block(seed: tuple[int, ...], block: int) -> np.ndarray:
     """Standard normals for the attitude noise of FDM steps ``block * B .. block * B + B - 1``:
     one generator per block (a second of steps) instead of one per step."""
-    rng = _rng(STREAM_ATTITUDE, seed, block)
+    rng = rng_of_stream(STREAM_ATTITUDE, seed, block)
     return rng.standard_normal((_ATTITUDE_BLOCK_STEPS, 6))
 
 
@@ -180,7 +181,7 @@ def _noise_field(seed: tuple[int, ...], std: float, shape: tuple[int, ...]) -> t
     negative parts (uint8, one of them 0 at each element): uniform 16-bit draws through a table
     of rounded ``std``-scaled normal quantiles (five times faster than drawing normals)."""
     table = np.round(_normal_quantiles() * std).astype(np.int16)
-    rng = _rng(STREAM_NOISE_FIELD, seed)
+    rng = rng_of_stream(STREAM_NOISE_FIELD, seed)
     index = rng.integers(0, _NOISE_LEVELS, size=(2 * shape[0], 2 * shape[1], *shape[2:]), dtype=np.uint16)
     noise = table[index]
     return np.clip(noise, 0, 255).astype(np.uint8), np.clip(-noise, 0, 255).astype(np.uint8)

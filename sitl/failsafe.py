@@ -60,4 +60,4 @@ class Failsafe:
     def _sticks_silent(self, t_s: float) -> None:
         st = self.status
         if st.mode is Mode.POSCTL and t_s - st.manual_at_s > STICKS_SILENT_S and not st.holding():
-            st.setpoint = hold_setpoint(self.v.state)
+            st.setpoint = hold_setpoint(self.v.estimate)

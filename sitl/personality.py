@@ -266,16 +266,16 @@ class CopterCommander(Commander):
         st.failsafe_since_s = None
         if mode is CopterMode.GUIDED:  # starts by holding where it is
             st.mode = Mode.OFFBOARD
-            st.setpoint = hold_setpoint(v.state)
+            st.setpoint = hold_setpoint(v.estimate)
             self.guided_velocity = False
         elif mode is CopterMode.LAND:
             self.enter(Mode.AUTO_LAND)
-            v.precland.start(v.state.attitude_rad[2])
+            v.precland.start(v.estimate.attitude_rad[2])
         elif mode is CopterMode.RTL:
             self.enter(Mode.AUTO_LOITER)
             home_n, home_e, _ = v.home_ned_m
-            st.setpoint = Setpoint(position_ned_m=(home_n, home_e, v.state.position_ned_m[2]),
-                                   velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=v.state.attitude_rad[2])
+            st.setpoint = Setpoint(position_ned_m=(home_n, home_e, v.estimate.position_ned_m[2]),
+                                   velocity_ned_m_s=(0.0, 0.0, 0.0), yaw_rad=v.estimate.attitude_rad[2])
         else:
             self.enter(INTERNAL[mode])
 
@@ -286,7 +286,7 @@ class CopterCommander(Commander):
         if self.copter_mode is CopterMode.GUIDED and st.mode is Mode.AUTO_LOITER:
             st.mode = Mode.OFFBOARD
         if self.copter_mode is CopterMode.RTL and st.mode is Mode.AUTO_LOITER:
-            n, e, _ = self.v.state.position_ned_m
+            n, e, _ = self.v.estimate.position_ned_m
             home = self.v.home_ned_m
             if math.hypot(n - home[0], e - home[1]) < RTL_ARRIVED_M:
                 self.enter(Mode.AUTO_LAND)
@@ -358,14 +358,14 @@ class CopterFailsafe(Failsafe):
             return
         if c.copter_mode is CopterMode.GUIDED and st.mode is Mode.OFFBOARD and c.guided_velocity:
             if t_s - st.last_offboard_s > self.v.params.get("GUID_TIMEOUT"):
-                st.setpoint = hold_setpoint(self.v.state)  # stop, stay in GUIDED
+                st.setpoint = hold_setpoint(self.v.estimate)  # stop, stay in GUIDED
                 c.guided_velocity = False
         self._sticks_silent(t_s)
         c.prearm_reports(t_s)
 
     def _ground_idle(self) -> Setpoint:
         """On the ground, armed, waiting (ArduCopter's "safe ground handling"): push down."""
-        s = self.v.state
+        s = self.v.estimate
         n, e, _ = s.position_ned_m
         return Setpoint(position_ned_m=(n, e, NAN), velocity_ned_m_s=(0.0, 0.0, self.v.params.get("MPC_LAND_SPEED")),
                         yaw_rad=s.attitude_rad[2])
@@ -378,7 +378,7 @@ class CopterSetpoints(SetpointStreams):
 
     def offboard(self, f: TargetFields) -> bool:
         v, st, c = self.v, self.status, self.v.commander
-        s = v.state
+        s = v.estimate
         try:
             sp = copter_setpoint(f, s.position_ned_m, s.attitude_rad[2], v.params.get("MPC_XY_VEL_MAX"))
         except SetpointRejected as exc:

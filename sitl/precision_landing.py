@@ -41,9 +41,10 @@ class PrecisionLanding:
         """The vehicle as its estimator reports it (the local frame of LOCAL_POSITION_NED), with
         the height above what is below it (a distance sensor)."""
         v = self.v
-        s = v.state
+        s, truth = v.estimate, v.state
+        tn, te, td = truth.position_ned_m
+        height = -td - v.world.surface_height_m(tn, te, s.time_s)  # the sensor measures the truth
         n, e, d = s.position_ned_m
-        height = -d - v.world.surface_height_m(n, e, s.time_s)
         return VehiclePose(s.time_s, (n, e, d - v.height_offset_m), s.velocity_ned_m_s, s.attitude_rad, height)
 
     def refuse_target(self, why: str) -> None:

@@ -30,7 +30,7 @@ class SetpointStreams:
     def offboard(self, f: TargetFields) -> bool:
         """Apply SET_POSITION_TARGET_LOCAL_NED; False (and a warning) when it is refused."""
         v, st = self.v, self.status
-        s = v.state
+        s = v.estimate
         f = from_reported_frame(f, v.height_offset_m)
         try:
             sp = to_setpoint(f, s.position_ned_m, s.attitude_rad[2], v.params.get("MPC_XY_VEL_MAX"))
@@ -61,11 +61,11 @@ class SetpointStreams:
         climb = (thr - 0.5) * 2.0
         if max(abs(a) for a in (*sticks, climb)) < STICK_DEADBAND:
             if not st.holding():
-                st.setpoint = hold_setpoint(v.state)
+                st.setpoint = hold_setpoint(v.estimate)
             return
         params = v.params
         vxy = params.get("MPC_XY_VEL_MAX")
-        yaw = v.state.attitude_rad[2]
+        yaw = v.estimate.attitude_rad[2]
         fwd, right = sticks[0] * vxy, sticks[1] * vxy
         c, s_ = math.cos(yaw), math.sin(yaw)
         vz = -climb * (params.get("MPC_Z_VEL_MAX_UP") if climb > 0 else params.get("MPC_Z_VEL_MAX_DN"))

@@ -102,6 +102,9 @@ class VehicleView(Protocol):
     def height_offset_m(self) -> float: ...
 
     @property
+    def estimate(self) -> VehicleState: ...
+
+    @property
     def home_ned_m(self) -> tuple[float, float, float]: ...
 
     @property

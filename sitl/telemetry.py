@@ -114,8 +114,8 @@ def attitude_quaternion(v: SimVehicle) -> mavlink.MAVLink_message:
 def local_position_fields(v: SimVehicle) -> tuple[int, float, float, float, float, float, float]:
     """LOCAL_POSITION_NED's fields in message order (time_boot_ms, x, y, z, vx, vy, vz), before the
     wire rounds them to float32. In the estimator's frame: z is ``height_offset_m`` less than the
-    truth (x - 0.0 is exact)."""
-    s = v.state
+    truth (x - 0.0 is exact), and north and east are the estimate's (sitl/estimate_error.py)."""
+    s = v.estimate
     n, e, d = s.position_ned_m
     return (v.time_boot_ms, n, e, d - v.height_offset_m, *s.velocity_ned_m_s)
 
@@ -125,7 +125,7 @@ def local_position_ned(v: SimVehicle) -> mavlink.MAVLink_message:
 
 
 def global_position_int(v: SimVehicle) -> mavlink.MAVLink_message:
-    s = v.state
+    s = v.estimate
     n, e, d = s.position_ned_m
     lat, lon, alt = ned_to_geodetic(v, n, e, d)
     vn, ve, vd = (int(round(c * 100)) for c in s.velocity_ned_m_s)
@@ -162,7 +162,7 @@ def battery_status(v: SimVehicle) -> mavlink.MAVLink_message:
 
 
 def vfr_hud(v: SimVehicle) -> mavlink.MAVLink_message:
-    s = v.state
+    s = v.estimate
     vn, ve, vd = s.velocity_ned_m_s
     gs = math.hypot(vn, ve)
     hdg = int(math.degrees(s.attitude_rad[2]) % 360)

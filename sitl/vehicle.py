@@ -23,6 +23,7 @@ from sitl.config import SitlConfig
 from sitl.control import FlightController
 from sitl.disturbance import EpisodeDisturbance
 from sitl.dynamics import HOME_ALT_M, TURBULENCE_GROUND_ASL_M, Dynamics, VehicleState
+from sitl.estimate_error import EstimateError
 from sitl.failsafe import Failsafe
 from sitl.land_detector import Px4LandDetector, VehicleLandDetector
 from sitl.landing_target import TargetMeasurement
@@ -127,7 +128,9 @@ class SimVehicle:
         return lambda: self.dynamics.carried_velocity_ne_m_s
 
     def _start_disturbance(self) -> None:
-        """Per-episode state of the disturbance: the camera's pose history (its latency)."""
+        """Per-episode state of the disturbance: the camera's pose history (its latency), the
+        autopilot's estimate error."""
+        self.estimate_error = EstimateError(self.cfg.estimator, self.disturbance.seed, self.dynamics.dt_s)
         k = self.disturbance.latency_steps(self.cfg.clock.fdm_rate_hz)
         self._camera_history: deque[VehicleState] | None = deque([self.state], maxlen=k + 1) if k > 0 else None
         self._attitude_noise_step = -1
@@ -138,7 +141,7 @@ class SimVehicle:
         return self.params.get(name)
 
     def _enter_landed_disarmed(self) -> None:
-        self.status.landed_disarmed(hold_setpoint(self.dynamics.state))
+        self.status.landed_disarmed(hold_setpoint(self.estimate))
         self.controller.reset()
         self.land_detector.reset(landed=True)
 
@@ -146,6 +149,12 @@ class SimVehicle:
     @property
     def state(self) -> VehicleState:
         return self.dynamics.state
+
+    @property
+    def estimate(self) -> VehicleState:
+        """The state as the autopilot's estimator has it, which it flies on and reports: the
+        truth, unless ``[sitl.estimator]`` sets an error (sitl/estimate_error.py)."""
+        return self.estimate_error.estimate(self.dynamics.state)
 
     @property
     def mode(self) -> Mode:
@@ -255,8 +264,9 @@ class SimVehicle:
         state = self.dynamics.state
         self.failsafe.check(state.time_s)
         self.precland.run()
-        self.commander.progress(state)
+        self.commander.progress(self.estimate)
         new = self.dynamics.step(self._esc(state))
+        self.estimate_error.advance()
         self.land_detector.update(new)
         self.commander.auto_disarm(new.time_s)
         if self._camera_history is not None:
@@ -268,7 +278,7 @@ class SimVehicle:
         st = self.status
         if self.land_detector.idles(state, st.setpoint, st.armed):
             return self.controller.idle(state)
-        return self.controller.update(state, st.setpoint, st.armed)
+        return self.controller.update(self.estimate, st.setpoint, st.armed)
 
     # ----- commands and messages: the parts' --------------------------------------------
     def arm(self, force: bool = False) -> Result:

@@ -19,30 +19,16 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import importlib.util
 import json
 import shutil
 import statistics
 import subprocess
-import sys
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
+from colcommon.script_module import load_script
 
-def _transfer_runner() -> ModuleType:
-    """This folder's run.py (paths, the real autopilots' config, starting an autopilot), loaded
-    under a name of its own so that no other ``run`` module is taken for it."""
-    name = "transfer_run"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parent / "run.py")
-        assert spec is not None and spec.loader is not None
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-transfer = _transfer_runner()
+transfer = load_script(Path(__file__).resolve().parent / "run.py", "transfer_run")  # this folder's run.py
 
 HERE = transfer.HERE
 OUT = HERE / "oncraft"

@@ -303,10 +303,14 @@ def table(s: dict[str, Any]) -> str:
 
 def summarise() -> None:
     s = summary()
-    (HERE / "summary.json").write_text(json.dumps(s, indent=1) + "\n")
-    (HERE / "table.md").write_text(table(s))
-    print(json.dumps({"written": ["summary.json", "table.md"],
-                      "flown": sum(v is not None for v in s["shares_pct"].values()), "planned": len(s["shares_pct"])}))
+    write_summary(HERE, s, table(s), sum(v is not None for v in s["shares_pct"].values()), len(s["shares_pct"]))
+
+
+def write_summary(folder: Path, s: dict[str, Any], table_text: str, flown: int, planned: int) -> None:
+    """summary.json and table.md into ``folder``, and a line saying how much of the plan they hold."""
+    (folder / "summary.json").write_text(json.dumps(s, indent=1) + "\n")
+    (folder / "table.md").write_text(table_text)
+    print(json.dumps({"written": ["summary.json", "table.md"], "flown": flown, "planned": planned}))
 
 
 def parse_keys(text: str | None) -> tuple[str, ...]:

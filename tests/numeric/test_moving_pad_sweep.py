@@ -3,15 +3,14 @@ hours of runs are not spent on a wrong config or read by a wrong rule. Nothing h
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from colcommon.script_module import load_script
 from companion.config import load_companion_config
 from companion.experiment.grid import TRAIN_CONDITIONS, load_experiment
 from companion.statistics import wilson_interval
@@ -22,12 +21,7 @@ SWEEP = Path(__file__).resolve().parents[2] / "results" / "moving-pad" / "sweep"
 
 
 def _load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"moving_pad_sweep_{name}", SWEEP / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SWEEP / f"{name}.py", f"moving_pad_sweep_{name}")
 
 
 run = _load("run")

@@ -4,14 +4,13 @@ vehicle"), and its summary pairs each arm by policy. Nothing here flies."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from colcommon.script_module import load_script
 from companion.config import load_companion_config
 from companion.experiment.grid import TrainingRun, load_experiment
 from companion.experiment.runner import trial_config
@@ -21,12 +20,7 @@ TRANSFER = Path(__file__).resolve().parents[2] / "results" / "transfer"
 
 
 def _load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"transfer_{name}", TRANSFER / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(TRANSFER / f"{name}.py", f"transfer_{name}")
 
 
 oncraft = _load("oncraft")

@@ -4,14 +4,13 @@ pairs each real autopilot with our SITL by policy. Nothing here flies."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from colcommon.script_module import load_script
 from companion.config import load_companion_config
 from companion.experiment.grid import load_experiment
 from sitl.config import load_sitl_config
@@ -20,12 +19,7 @@ TRANSFER = Path(__file__).resolve().parents[2] / "results" / "transfer"
 
 
 def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("transfer_run", TRANSFER / "run.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(TRANSFER / "run.py", "transfer_run")
 
 
 run = _load()
