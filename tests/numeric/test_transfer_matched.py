@@ -88,3 +88,10 @@ def test_the_summary_pairs_each_column_with_px4_by_policy(tmp_path: Path, monkey
     assert matched["absolute_error_reduction"]["mean_points"] == 67.5
     assert s["columns"]["ours-est"]["minus_px4"]["policies"] == 0  # not flown: not counted
     assert "| ours-matched | 4 | 5.0 |" in run.table(s)
+
+
+def test_the_committed_columns_are_the_runners_from_the_committed_fit() -> None:
+    fit = json.loads(run.FIT.read_text())
+    assert fit["vel_cmd_tau_s"] in run.TAUS_S
+    for column in run.COLUMNS:
+        assert run.config_path(column).read_text() == run.column_text(column, fit), column
