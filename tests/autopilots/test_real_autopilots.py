@@ -325,7 +325,13 @@ def test_expert_episodes_end_in_touchdown(scenarios: dict[str, Scenario], kind: 
     assert all(r["success"] is not None for r in s.expert_records)
     assert min(r["touchdown_distance_m"] for r in landed) < 1.5, s.expert_records  # it steered to the pad
     summary = json.loads(s.expert.stdout.strip().splitlines()[-1])
-    assert summary["frame_age_ms"]["p95"] < 500, summary  # frames rendered from fresh telemetry
+    # Frames rendered from fresh telemetry. Ages are in the vehicle's time, which runs SPEEDUP times
+    # the machine's: the tail is bounded by half a second of the machine's time (at a load of 10.7
+    # a p95 of 620 vehicle ms at 4x was seen, bench/results/ci-fresh-2026-12-07-25-failed.txt), the
+    # median by half a second of the vehicle's (100 ms there); a frame drawn from frozen telemetry
+    # ages without bound and fails both.
+    assert summary["frame_age_ms"]["p50"] < 500, summary
+    assert summary["frame_age_ms"]["p95"] < 500 * SPEEDUP[kind], summary
 
 
 @pytest.mark.parametrize("kind", KINDS)
