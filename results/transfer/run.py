@@ -260,9 +260,11 @@ def summary() -> dict[str, Any]:
     frame_moved: dict[str, Any] = {}  # Amendment 1: aligned minus measured, the same policy on the same autopilot
     for vehicle in ALIGNED:
         for air in AIRS:
-            frame_moved[f"{vehicle}/{air}"] = paired_mean(
-                [(shares[f"{k}/{vehicle}/{air}"], shares[f"{k}/{autopilot_of(vehicle)}/{air}"]) for k in POLICIES],
-                bootstrap_mean_ci)
+            for cond in ("demo", "col", "all"):
+                keys = [k for k in POLICIES if cond == "all" or f"-{cond}-" in k]
+                frame_moved[f"{vehicle}/{air}/{cond}"] = paired_mean(
+                    [(shares[f"{k}/{vehicle}/{air}"], shares[f"{k}/{autopilot_of(vehicle)}/{air}"]) for k in keys],
+                    bootstrap_mean_ci)
     return {"shares_pct": shares, "gaps": gaps, "col_minus_demo": col_minus_demo, "frame_moved": frame_moved,
             "plan": "docs/camera.md, The transfer table (preregistration)"}
 

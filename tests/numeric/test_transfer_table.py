@@ -95,5 +95,7 @@ def test_the_gap_is_paired_by_policy_and_missing_cells_are_left_out(tmp_path: Pa
     flown("P1-col-20-s0", "px4", 4)
     flown("P1-col-20-s0", "px4-aligned", 9)
     moved = run.summary()["frame_moved"]
-    assert moved["px4-aligned/still"] == {"pairs": 1, "mean_points": 25.0, "interval95": None}  # 45 % - 20 %
-    assert moved["ardupilot-aligned/still"]["pairs"] == 0
+    assert moved["px4-aligned/still/col"] == {"pairs": 1, "mean_points": 25.0, "interval95": None}  # 45 % - 20 %
+    assert moved["px4-aligned/still/all"] == moved["px4-aligned/still/col"]
+    assert moved["px4-aligned/still/demo"]["pairs"] == 0  # by condition, as the gaps
+    assert moved["ardupilot-aligned/still/all"]["pairs"] == 0
