@@ -261,11 +261,11 @@ class SimVehicle:
     # ----- simulation --------------------------------------------------------------------
     def step(self) -> VehicleState:
         """One FDM step: failsafes, mode progress, controller, dynamics, ground contact."""
-        state = self.dynamics.state
+        state, estimate = self.dynamics.state, self.estimate  # neither changes until the FDM steps
         self.failsafe.check(state.time_s)
         self.precland.run()
-        self.commander.progress(self.estimate)
-        new = self.dynamics.step(self._esc(state))
+        self.commander.progress(estimate)
+        new = self.dynamics.step(self._esc(state, estimate))
         self.estimate_error.advance()
         self.land_detector.update(new)
         self.commander.auto_disarm(new.time_s)
@@ -273,12 +273,13 @@ class SimVehicle:
             self._camera_history.append(new)
         return new
 
-    def _esc(self, state: VehicleState) -> tuple[float, float, float, float]:
-        """The controller's output (idle while landed and not asked to take off, by PX4's rule)."""
+    def _esc(self, state: VehicleState, estimate: VehicleState) -> tuple[float, float, float, float]:
+        """The controller's output, flown on the ``estimate`` (idle while landed, by the truth
+        ``state``, and not asked to take off, by PX4's rule)."""
         st = self.status
         if self.land_detector.idles(state, st.setpoint, st.armed):
             return self.controller.idle(state)
-        return self.controller.update(self.estimate, st.setpoint, st.armed)
+        return self.controller.update(estimate, st.setpoint, st.armed)
 
     # ----- commands and messages: the parts' --------------------------------------------
     def arm(self, force: bool = False) -> Result:
