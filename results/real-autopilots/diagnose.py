@@ -46,6 +46,14 @@ from companion.msg.pad import PadDetection
 
 W_PX, H_PX = 320, 240
 CONTACT_M = 0.1
+FLYING_M = 0.3  # in flight: the truth this much above where it stood at the start
+
+
+def in_flight(rows: list[dict]) -> list[bool]:
+    """Per row: the truth more than FLYING_M above where the vehicle stood at the start (the
+    median of the first 50 rows)."""
+    ground = float(np.median([r["td"] for r in rows[:50]]))
+    return [r["td"] < ground - FLYING_M for r in rows]
 
 
 def wrap(a: float) -> float:
@@ -165,8 +173,7 @@ def diagnose(run: Path, cfg: PilotConfig) -> list[dict]:
                               "true_travel_m": round(math.hypot(rows[end]["tn"] - rows[k]["tn"], rows[end]["te"] - rows[k]["te"]), 3)}
         out.append(line)
 
-    ground = float(np.median([r["td"] for r in rows[:50]]))
-    flying = [r for r in rows if r["td"] < ground - 0.3]
+    flying = [r for r, up in zip(rows, in_flight(rows), strict=True) if up]
 
     def stats(values: list[float], digits: int = 3) -> dict[str, float]:
         return {"median": round(float(np.median(values)), digits), "p95": round(float(np.percentile(values, 95)), digits)}

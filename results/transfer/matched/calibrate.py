@@ -20,22 +20,19 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "real-autopilots"))
-from diagnose import read_tlog  # noqa: E402  (results/real-autopilots/diagnose.py: the same rows)
+from diagnose import in_flight, read_tlog  # noqa: E402  (results/real-autopilots/diagnose.py: the same rows and rule)
 
 from sitl.estimate_error import Segment, fit  # noqa: E402
 
-FLYING_M = 0.3
 GAP_S = 0.5
 
 
 def segments(rows: list[dict]) -> list[Segment]:
     """The in-flight stretches of one session's rows (times in s, errors estimate minus truth)."""
-    ground = float(np.median([r["td"] for r in rows[:50]]))
     out, current = [], []
     last_t = None
-    for r in rows:
+    for r, flying in zip(rows, in_flight(rows), strict=True):
         t = r["tb"] / 1000.0
-        flying = r["td"] < ground - FLYING_M
         if current and (not flying or (last_t is not None and t - last_t > GAP_S)):
             out.append(current)
             current = []
