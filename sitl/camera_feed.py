@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from sitl.vehicle import SimVehicle
 
 M = mavlink
+WRITE_TIMEOUT_S = 2.0  # real time: a reader this far behind is dropped (sitl/frames.py)
 
 
 def render_frame(renderer: CameraRenderer, v: SimVehicle) -> np.ndarray:
@@ -30,6 +31,17 @@ def render_frame(renderer: CameraRenderer, v: SimVehicle) -> np.ndarray:
     d = v.disturbance
     image = renderer.render(s.position_ned_m, s.attitude_rad, s.time_s, d.camera_mount)
     return d.add_image_noise(image, v.dynamics.steps)
+
+
+def reader_patience_s(cfg: SitlConfig) -> float:
+    """How long a frame may take to reach a reader before the reader is dropped. In lockstep
+    as long as the SITL waits for the frame's answer: the companion that reads the camera is the
+    one that answers, and a machine that starves both for a few seconds (seen at a load of 10+
+    on 2 cores) otherwise lost the reader, and the frames of the next steps, while the answer
+    was still awaited; the flight then differed from the same run on an idle machine."""
+    if cfg.clock.mode == "lockstep":
+        return max(WRITE_TIMEOUT_S, cfg.clock.lockstep_timeout_s)
+    return WRITE_TIMEOUT_S
 
 
 class FrameSink(Protocol):
@@ -62,7 +74,7 @@ class CameraFeed:
         self.renderer = CameraRenderer(cfg.camera, vehicle.world)
         self.server: FrameSink = sink if sink is not None else FrameServer(
             cfg.network.host, cfg.network.camera_port, encoding=cfg.camera.encoding,
-            jpeg_quality=cfg.camera.jpeg_quality)
+            jpeg_quality=cfg.camera.jpeg_quality, write_timeout_s=reader_patience_s(cfg))
         self.frame_number = 0
         self.interval_s = 1.0 / cfg.camera.stream_rate_hz
         self._next_s = 0.0

@@ -31,7 +31,7 @@ from companion.link.truth import TRUTH_RATE_HZ
 from companion.msg.setpoint import VelocitySetpoint
 from companion.msg.snapshot import VehicleSnapshot
 from companion.simulator import SimulatorClient
-from companion.vision.camera import CameraSource
+from companion.vision.camera import CameraSource, lockstep_frame
 
 MAV_RESULT_FAILED = 4
 
@@ -90,7 +90,7 @@ class LinkLane:
         """The camera image of the frame being answered (None: no camera, or none in time)."""
         if self.camera is None:
             return None
-        frame = self.camera.frame_at(self.port.frame_ms, self.frame_timeout_s)
+        frame = lockstep_frame(self.camera, self.port.frame_ms, self.frame_timeout_s)
         return None if frame is None else frame.image
 
     def ground_truth(self) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from companion.link.dialect import Dialect
 from companion.link.landing_target import LandingTarget, landing_target
 from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.aruco import ArucoPadDetector
-from companion.vision.camera import CameraSource, SitlCameraSource
+from companion.vision.camera import CameraSource, SitlCameraSource, lockstep_frame
 
 log = logging.getLogger(__name__)
 
@@ -162,7 +162,7 @@ class PrecisionLander:
         if self.camera is None:
             return None
         if lockstep and snap.frame_time_boot_ms is not None:
-            return self.camera.frame_at(int(snap.frame_time_boot_ms), self.frame_timeout_s)
+            return lockstep_frame(self.camera, int(snap.frame_time_boot_ms), self.frame_timeout_s)
         frame = self.camera.frame_at(self._last_frame_ms + 1, self.frame_timeout_s)
         if frame is not None:
             self._last_frame_ms = frame.time_boot_ms

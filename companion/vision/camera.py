@@ -26,6 +26,12 @@ from companion.errors import CameraError
 
 log = logging.getLogger(__name__)
 SITL_SCHEME = "colf://"
+LOCKSTEP_FRAME_PATIENCE_S = 10.0
+"""How long a lockstep step waits for its own frame at least. The SITL writes a frame's image
+whole before the frame's marker, so once the marker is in, the image is on its way: waiting costs
+nothing on a healthy machine, and on a starved one it keeps the step's true picture instead of
+flying it blind (a camera that drops or dies ends the wait at once). As long as the SITL waits
+for an answer at most (``[sitl.clock] lockstep_timeout_s``)."""
 
 
 class CameraSource(Protocol):
@@ -38,6 +44,12 @@ class CameraSource(Protocol):
     def frame_at(self, time_boot_ms: int, timeout_s: float) -> Frame | None: ...
 
     def close(self) -> None: ...
+
+
+def lockstep_frame(camera: CameraSource, time_boot_ms: int, timeout_s: float) -> Frame | None:
+    """The frame of the lockstep step stamped ``time_boot_ms``: ``timeout_s`` or
+    :data:`LOCKSTEP_FRAME_PATIENCE_S`, whichever is longer."""
+    return camera.frame_at(time_boot_ms, max(timeout_s, LOCKSTEP_FRAME_PATIENCE_S))
 
 
 class _FrameSlot:

@@ -16,7 +16,7 @@ from colcommon.frames import Frame
 from companion.msg.observation import Observation
 from companion.msg.pad import PadDetection
 from companion.msg.snapshot import VehicleSnapshot
-from companion.vision.camera import CameraSource
+from companion.vision.camera import CameraSource, lockstep_frame
 from companion.vision.perception import PadDetector
 
 log = logging.getLogger(__name__)
@@ -62,7 +62,7 @@ class Observer:
         if time_boot_ms is None:
             frame = self._fresh(self.camera.latest())
         else:
-            frame = self.camera.frame_at(time_boot_ms, self.frame_timeout_s)
+            frame = lockstep_frame(self.camera, time_boot_ms, self.frame_timeout_s)
         if frame is None:
             self.frames_missing += 1
             self._warn("no camera frame for this control step")

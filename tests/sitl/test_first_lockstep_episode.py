@@ -16,7 +16,9 @@ import math
 import numpy as np
 
 from colcommon.configio import build
+from sitl.camera_feed import WRITE_TIMEOUT_S, reader_patience_s
 from sitl.config import SitlConfig
+from sitl.frames import FrameServer
 from sitl.server import SitlServer
 from sitl.vehicle import FIRST_LOCKSTEP_EPISODE_S
 
@@ -94,3 +96,22 @@ def test_a_real_time_sitl_starts_its_first_episode_at_the_next_whole_second() ->
         assert server.vehicle.clock_offset_ms == 0 and reply["time_boot_ms"] == 6000  # ceil(5.83 s)
     finally:
         server.close()
+
+
+def test_a_lockstep_sitl_gives_its_camera_reader_as_long_as_the_answer() -> None:
+    """The companion that reads the camera is the one that answers the frame: a lockstep SITL
+    drops a slow camera reader only after ``lockstep_timeout_s`` (a starved machine's stall of
+    6 s dropped it at 2 s and the next steps flew without frames), never before real time's
+    2 s; in real time a reader is dropped after 2 s as before."""
+    d = lockstep_cfg().model_dump()
+    d["camera"]["enabled"] = True
+    d["clock"]["lockstep_timeout_s"] = 10.0
+    server = SitlServer(build(SitlConfig, d, "test"))
+    try:
+        assert server.camera is not None and isinstance(server.camera.server, FrameServer)
+        assert server.camera.server.write_timeout_s == 10.0
+    finally:
+        server.close()
+    short = build(SitlConfig, {**d, "clock": {**d["clock"], "lockstep_timeout_s": 0.5}}, "test")
+    real_time = build(SitlConfig, {**d, "clock": {**d["clock"], "mode": "realtime"}}, "test")
+    assert reader_patience_s(short) == reader_patience_s(real_time) == WRITE_TIMEOUT_S == 2.0

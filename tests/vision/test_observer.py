@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -10,11 +11,14 @@ import pytest
 from colcommon.frames import Frame
 from companion.msg.observation import PAD_NOT_VISIBLE
 from companion.msg.snapshot import VehicleSnapshot
+from companion.vision.camera import LOCKSTEP_FRAME_PATIENCE_S, SitlCameraSource
 from companion.vision.observer import STALE_AFTER_TICKS, Observer
 from companion.vision.perception import PadDetector
 from sitl.camera import CameraRenderer
 from sitl.config import CameraConfig, WorldConfig
+from sitl.frames import FrameServer
 from sitl.world import World
+from tests.conftest import wait_until
 
 
 class StuckCamera:
@@ -74,3 +78,23 @@ def test_a_corrupt_image_counts_as_not_visible(pad_frame: Frame) -> None:
     observer.detector.detect = lambda image: (_ for _ in ()).throw(ValueError("bad image"))  # type: ignore[method-assign]
     assert observer.observe(snapshot(), lockstep=True).pad is None
     assert observer.detect_errors == 1
+
+
+def test_lockstep_waits_for_its_frame_longer_than_the_frame_timeout(pad_frame: Frame) -> None:
+    """A lockstep frame is written before its marker, so it is on its way: the step waits for it
+    (up to LOCKSTEP_FRAME_PATIENCE_S) even when it comes later than ``frame_timeout_s`` (a
+    starved reader thread), and flies on its picture; in real time the newest frame is taken."""
+    with FrameServer() as server:
+        source = SitlCameraSource(server.uri)
+        source.open()
+        try:
+            assert wait_until(lambda: server.client_count == 1)
+            observer = Observer(source, PadDetector(), (320, 240), frame_timeout_s=0.0)
+            late = threading.Timer(0.3, lambda: server.publish(pad_frame, blocking=True))
+            late.start()
+            obs = observer.observe(snapshot(1000), lockstep=True)
+            late.join()
+            assert obs.pad is not None and not obs.frame_missing and observer.frames_missing == 0
+        finally:
+            source.close()
+    assert LOCKSTEP_FRAME_PATIENCE_S >= 10.0  # as long as the SITL waits for an answer at most
