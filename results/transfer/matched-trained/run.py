@@ -20,7 +20,6 @@ import argparse
 import json
 import shutil
 import statistics
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -48,17 +47,8 @@ judge_drift_by_picture = true
 TEACHER = ("--pilot", "expert", "--condition", "demo", "--no-learn")
 
 T = load_script(TRANSFER / "run.py", "transfer_run")  # the table's own: policies, starts, autopilots
-
-
-def _rel(path: Path) -> str:
-    try:
-        return str(path.resolve().relative_to(ROOT))
-    except ValueError:
-        return str(path)
-
-
-def col() -> str:
-    return str(Path(sys.executable).with_name("col"))
+M = load_script(TRANSFER / "matched" / "run.py", "matched_run")  # Amendment 2's: paths and the col command
+_rel, col = M._rel, M.col
 
 
 def record(step: str, **context: object) -> None:
