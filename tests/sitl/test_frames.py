@@ -308,7 +308,9 @@ def test_opencv_file_source_plays_then_goes_dead(tmp_path, caplog) -> None:
         assert first is not None and first.image.shape == (48, 64, 3)
         with caplog.at_level(logging.WARNING, logger="companion.vision.camera"):
             assert wait_until(lambda: source.latest() is None, 3.0)  # 5 frames at 50 fps, then the end
-        assert any("end of file" in r.getMessage() for r in caplog.records)
+            # the reader thread marks the source dead, then logs why: wait for the line too (a CI run
+            # at load 8 read the records between the two)
+            assert wait_until(lambda: any("end of file" in r.getMessage() for r in caplog.records), 3.0)
     finally:
         source.close()
 
