@@ -108,7 +108,9 @@ def train(runs: Path, workers: int) -> None:
     records, each trial's final checkpoint and its evaluation in the matched SITL are kept."""
     need_config()
     out = runs / "grid"
-    run_logged([col(), "experiment", "--config", _rel(CONFIG), "--workers", str(workers), "--out", _rel(out)],
+    # col named relative to the repository: the experiment records its command line in
+    # environment.jsonl, which is committed (grid/)
+    run_logged([_rel(Path(col())), "experiment", "--config", _rel(CONFIG), "--workers", str(workers), "--out", _rel(out)],
                runs / "train.log", ROOT)
     GRID.mkdir(parents=True, exist_ok=True)
     for name in GRID_FILES:
