@@ -160,9 +160,9 @@ def fly(keys: tuple[str, ...], episodes: int, runs: Path) -> None:
 
 # ----- the analysis -------------------------------------------------------------------------------
 
-def on_pad(path: Path, first: int | None = None) -> int:
+def on_pad(path: Path) -> int:
     records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    return sum(bool(r["success"]) for r in records[:first])
+    return sum(bool(r["success"]) for r in records)
 
 
 def share_pct(path: Path, first: int = T.EPISODES_EACH) -> float | None:
