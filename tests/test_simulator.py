@@ -118,3 +118,45 @@ def test_a_lockstep_sitl_waiting_for_an_answer_stops_at_once(tmp_path) -> None: 
     finally:
         sitl.stop()
         client.close()
+
+
+def test_a_sitl_that_ignores_sigterm_is_killed_and_the_stop_returns() -> None:
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", "import signal, time\nsignal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+                             "print('ready', flush=True)\ntime.sleep(60)"], stdout=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stdout.readline() == b"ready\n"
+    simulator.SitlProcess(proc, {}).stop(timeout_s=0.2)
+    assert proc.returncode is not None and proc.returncode < 0  # killed, not ended by itself
+
+
+class _Unreaped:
+    """A process that never exits: what a stop meets on a machine too busy to run a killed process's exit."""
+
+    pid = 4242
+    stdout = stderr = None
+    returncode = None
+
+    def __init__(self) -> None:
+        self.signals: list[str] = []
+
+    def poll(self) -> None:
+        return None
+
+    def terminate(self) -> None:
+        self.signals.append("TERM")
+
+    def kill(self) -> None:
+        self.signals.append("KILL")
+
+    def wait(self, timeout: float | None = None) -> int:
+        raise subprocess.TimeoutExpired("sitl", timeout or 0.0)
+
+
+def test_a_stop_that_cannot_reap_the_sitl_warns_and_does_not_raise(monkeypatch: pytest.MonkeyPatch,
+                                                                    caplog: pytest.LogCaptureFixture) -> None:
+    monkeypatch.setattr(simulator, "KILL_REAP_S", 0.01)
+    proc = _Unreaped()
+    simulator.SitlProcess(proc, {}).stop(timeout_s=0.01)  # type: ignore[arg-type]
+    assert proc.signals == ["TERM", "KILL"]
+    assert "left to the kernel" in caplog.text

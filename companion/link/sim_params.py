@@ -37,6 +37,11 @@ from companion.link.base import VehicleLink
 log = logging.getLogger(__name__)
 PARAM_TOLERANCE = 1e-3
 FT_PER_M = 1.0 / 0.3048
+# How long an episode start waits for a parameter's echo (PARAM_SET or PARAM_REQUEST_READ sent again
+# every command_timeout_s meanwhile). A command's 4 s was once too short: PX4 SIH at 4x beside a
+# full test run left SIH_MASS unechoed for all four tries (bench/results/ci-fresh-2026-12-07-33-failed.txt),
+# and the episode was lost. Waiting at an episode's start costs nothing when the answer comes.
+PARAM_BUDGET_S = 15.0
 WIND_TYPE_NO_LIMIT = 1  # ArduPilot SIM_WIND_T: no reduction of the wind near the ground
 ARDUPILOT, PX4 = "ARDUPILOTMEGA", "PX4"  # the HEARTBEAT's autopilot, as the snapshot names it
 
@@ -151,7 +156,7 @@ class AutopilotSim:
 
     def _remember(self, link: VehicleLink, names: tuple[str, ...]) -> None:
         for name in names:
-            value = link.read_param(name)
+            value = link.read_param(name, PARAM_BUDGET_S)
             if value is None:
                 raise CommandRejected(f"PARAM_REQUEST_READ {name}", "NO_ANSWER",
                                       "the vehicle does not have it: is this its SITL (ArduCopter SITL, PX4 SIH)?")
@@ -159,7 +164,7 @@ class AutopilotSim:
 
     @staticmethod
     def _set(link: VehicleLink, name: str, value: float) -> None:
-        echoed = link.set_param(name, value)
+        echoed = link.set_param(name, value, PARAM_BUDGET_S)
         if echoed is None or not math.isclose(echoed, value, rel_tol=1e-5, abs_tol=PARAM_TOLERANCE):
             raise CommandRejected(f"PARAM_SET {name}={value:g}", "NOT_CONFIRMED",
                                   f"the vehicle echoed {echoed}; is this its SITL?")

@@ -424,6 +424,7 @@ if __name__ == "__main__":
 # ----- precision landing ------------------------------------------------------------------------
 PRECLAND_POINT_NE_M = (3.0, 2.0)  # the fixed point to land on, from where the vehicle took off
 PRECLAND_ALT_M = 4.0
+STREAM_BROKEN = "PrecLand: Init Failed"  # ArduCopter: no LANDING_TARGET for 0.5 s of its time while it initialised
 PX4_PRECLAND_PARAMS = ("PLD_BTOUT", "PLD_HACC_RAD", "PLD_FAPPR_ALT", "PLD_SRCH_ALT", "PLD_SRCH_TOUT", "PLD_MAX_SRCH",
                        "LTEST_MODE", "LTEST_ACC_UNC", "LTEST_MEAS_UNC", "LTEST_SCALE_X", "LTEST_SENS_ROT")
 AP_PRECLAND_PARAMS = ("PLND_ENABLED", "PLND_TYPE", "PLND_EST_TYPE", "PLND_LAG", "PLND_XY_DIST_MAX", "PLND_STRICT",
@@ -450,6 +451,7 @@ class PrecLandOutcome:
     wrong_frame_texts: list[str] = field(default_factory=list)  # said after targets in the other autopilot's frame
     texts: list[str] = field(default_factory=list)  # what it said meanwhile
     errors: list[str] = field(default_factory=list)
+    flights: int = 1  # the flight this is; an earlier one's target stream broke (fly_precland)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -596,8 +598,21 @@ class PrecLandScript(Script):
         return self.pr
 
 
-def fly_precland(connection: str, land_s: float = 60.0, texts_from: str | None = None) -> PrecLandOutcome:
-    """The precision-landing script once against the vehicle at ``connection`` (STATUSTEXT also
-    from ``texts_from``, a second link, if given)."""
-    return PrecLandScript(connection, land_s, texts_from).run_precland()
+def fly_precland(connection: str, land_s: float = 60.0, texts_from: str | None = None,
+                 attempts: int = 2) -> PrecLandOutcome:
+    """The precision-landing script against the vehicle at ``connection`` (STATUSTEXT also from
+    ``texts_from``, a second link, if given), flown again (up to ``attempts`` flights) when the
+    vehicle said our target stream broke (:data:`STREAM_BROKEN`).
+
+    ArduCopter's estimator needs a LANDING_TARGET at least every 0.5 s of its time for its first
+    2 s (AC_PrecLand's EKF_INIT_SENSOR_MIN_UPDATE_MS), else it says "PrecLand: Init Failed". At 5x
+    that is 0.1 s of the wall: a script stalled that long by a loaded machine broke the stream,
+    and ArduCopter landed where it stood (bench/results/ci-fresh-2026-12-07-32-failed.txt). That
+    flight measured the machine, not the autopilot; the outcome keeps the count in ``flights``."""
+    for flight in range(1, attempts + 1):
+        outcome = PrecLandScript(connection, land_s, texts_from).run_precland()
+        outcome.flights = flight
+        if STREAM_BROKEN not in outcome.texts:
+            break
+    return outcome
 

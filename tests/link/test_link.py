@@ -226,6 +226,21 @@ def test_a_lost_param_echo_is_asked_for_again_as_often_as_a_command(fake, make_l
     assert [m.param_id for m in fake.messages("PARAM_SET")].count("SIH_KDV") <= 2
 
 
+def test_an_episode_start_waits_for_its_parameter_echoes_longer_than_a_command(fake, make_link) -> None:
+    """PX4 SIH at 4x beside a full test run left SIH_MASS unechoed for all of a command's tries,
+    and the episode was lost: an episode's parameters are asked for again until PARAM_BUDGET_S."""
+    from companion.link.sim_params import PX4, AutopilotSim, SimEpisode
+
+    link = make_link(command_retries=1)  # a command gets two tries of 0.3 s
+    fake.autopilot.state.params.update(SIH_MASS=1.0, SIH_KDV=0.5)
+    sim = AutopilotSim(lambda seed: SimEpisode(), height_m=9.5, mass_scale=1.1)
+    fake.drop_param_echoes(4)  # more than a command's tries
+    notes = sim.prepare_episode(link, PX4, seed=0)
+    assert fake.autopilot.state.params["SIH_MASS"] == pytest.approx(1.1)
+    assert "SIH_MASS=1.1" in notes[0]
+    assert [m.param_id for m in fake.messages("PARAM_SET")].count("SIH_MASS") >= 5
+
+
 def test_arm_takeoff_land_reach_the_vehicle(fake, make_link) -> None:
     link = make_link()
     link.arm()
