@@ -258,13 +258,19 @@ class InProcessIO(MavlinkIO):
             self.drain()
         return self.snapshot if ready(self.snapshot) else None
 
+    def alive(self) -> bool:
+        """Heard once and not closed. The vehicle speaks only when the companion advances it, so
+        its silence while the companion thinks (a loaded machine, a slow first step) is not a
+        lost link: a wall-clock silence had ended an in-process episode as ``link_lost``."""
+        return self._last_heard_s is not None and not self.closed
+
 
 class InProcessLink(MavlinkLink):
     """The companion's MAVLink link over :class:`InProcessIO` (no tlog: evaluation drops it)."""
 
-    def __init__(self, cfg: LinkConfig, sitl: InProcessSitl) -> None:
+    def __init__(self, cfg: LinkConfig, sitl: InProcessSitl, clock: Callable[[], float] = time.monotonic) -> None:
         cfg = cfg.model_copy(update={"connection": INPROCESS_CONNECTION})
-        super().__init__(cfg)
+        super().__init__(cfg, clock=clock)
         self.io = self._io = InProcessIO(cfg, sitl, self._clock)
 
 

@@ -26,6 +26,7 @@ from companion.errors import CommandRejected, LinkTimeout
 from companion.link.base import VehicleLink
 from companion.link.dialect import Dialect
 from companion.link.landing_target import LandingTarget, landing_target
+from companion.link.sim_params import PARAM_BUDGET_S
 from companion.msg.snapshot import VehicleSnapshot
 from companion.vision.aruco import ArucoPadDetector
 from companion.vision.camera import CameraSource, SitlCameraSource, lockstep_frame
@@ -116,7 +117,7 @@ class PrecisionLander:
         made effective by a reboot while disarmed (nothing when already set). True: rebooted."""
         if not dialect.precland_params_at_boot:
             return False
-        current = {name: self.link.read_param(name) for name, _ in dialect.precland_params}
+        current = {name: self.link.read_param(name, PARAM_BUDGET_S) for name, _ in dialect.precland_params}
         if not dialect.precland_reboot_needed(current):
             log.info("precision landing: %s already in effect", _listed(current))
             return False
@@ -149,9 +150,10 @@ class PrecisionLander:
                  ", ".join(f"{n}={v:g}" for n, v in dialect.precland_params) or "no parameters")
 
     def _set_params(self, dialect: Dialect) -> None:
-        """Each of the dialect's parameters, confirmed by the vehicle's PARAM_VALUE echo."""
+        """Each of the dialect's parameters, confirmed by the vehicle's PARAM_VALUE echo (waited for
+        as an episode's simulator parameters are: a loaded autopilot at 4-5x answers late)."""
         for name, value in dialect.precland_params:
-            echoed = self.link.set_param(name, value)
+            echoed = self.link.set_param(name, value, PARAM_BUDGET_S)
             if echoed is None or not math.isclose(echoed, value, abs_tol=PARAM_TOLERANCE):
                 raise CommandRejected(f"PARAM_SET {name}={value:g}", "NOT_CONFIRMED",
                                       f"the vehicle echoed {echoed}; set it at the ground station and retry")

@@ -41,6 +41,11 @@ MODES = {  # (take-off mode, offboard mode) as pymavlink names them
     "PX4": ("LOITER", "OFFBOARD"),
     "ARDUPILOTMEGA": ("GUIDED", "GUIDED"),
 }
+LOSS_PARAMS = {  # the vehicle's own limit on a gap in the setpoint stream, in seconds of its time
+    "PX4": "COM_OF_LOSS_T",  # leaves OFFBOARD for its hold (PX4's SITL scales it by its speed factor)
+    "ARDUPILOTMEGA": "GUID_TIMEOUT",  # stops in GUIDED
+}
+MODE_HEARTBEAT_S = 5.0  # of the vehicle's time: the most to wait for a HEARTBEAT after the mode's ACK
 
 
 @dataclass
@@ -62,9 +67,18 @@ class Outcome:
     standing_height_m: float | None = None  # -z of LOCAL_POSITION_NED while standing before arming
     home_z_m: float | None = None
     errors: list[str] = field(default_factory=list)
+    loss_timeout_s: float | None = None  # the vehicle's LOSS_PARAMS value, as read
+    max_setpoint_gap_s: float | None = None  # the longest the script left the stream, of the vehicle's time
+    flights: int = 1  # the flight this is; an earlier one's setpoint stream broke (fly_script)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def stream_broke(self) -> bool:
+        """The script itself left a gap in the setpoint stream as long as the vehicle's limit:
+        then what the vehicle did measured the machine's load, not the autopilot."""
+        gap, limit = self.max_setpoint_gap_s, self.loss_timeout_s
+        return gap is not None and limit is not None and gap >= limit
 
 
 class TextListener:
@@ -113,7 +127,9 @@ class Script:
         self.armed = False
         self.mode = ""
         self.home_z: float | None = None
+        self.heartbeats = 0
         self.clock = VehicleClock()
+        self._last_send_s: float | None = None  # of the vehicle's time: the stream's last setpoint
 
     # ----- plumbing ---------------------------------------------------------------------------
     def _pump(self, seconds: float, until: Any = None, wall: bool = False) -> Any:
@@ -145,6 +161,7 @@ class Script:
         elif kind == "HEARTBEAT" and msg.type not in (M.MAV_TYPE_GCS, M.MAV_TYPE_ONBOARD_CONTROLLER):
             self.armed = bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
             self.mode = mavutil.mode_string_v10(msg)
+            self.heartbeats += 1
         elif kind == "STATUSTEXT":
             text = str(msg.text)
             self._unheard.append(text)
@@ -197,11 +214,21 @@ class Script:
         while (elapsed := self.clock.seconds - start) < seconds and time.monotonic() < deadline:
             if self.clock.seconds >= next_send:
                 send()
+                self._note_sent()
                 next_send = self.clock.seconds + SETPOINT_PERIOD_S
             self._read_one()
             if until is not None and until():
                 return elapsed
         return None
+
+    def _note_sent(self) -> None:
+        """The gap since the stream's last setpoint (across the script's steps: a mode's ACK
+        awaited without streaming counts too), the longest kept in the outcome."""
+        now = self.clock.seconds
+        if self._last_send_s is not None:
+            gap = round(now - self._last_send_s, 3)
+            self.out.max_setpoint_gap_s = max(gap, self.out.max_setpoint_gap_s or 0.0)
+        self._last_send_s = now
 
     def _read_one(self) -> None:
         """Fold the next message, waiting at most :data:`READ_S` of wall time for it."""
@@ -246,6 +273,8 @@ class Script:
         self._stream_rates((("LOCAL_POSITION_NED", 20), ("EXTENDED_SYS_STATE", 5), ("HOME_POSITION", 1), ("ATTITUDE", 10)))
         names = ("LNDMC_Z_VEL_MAX",) if out.autopilot == "PX4" else ("LAND_SPEED", "LAND_SPEED_HIGH")
         out.land_param = {n: self._param(n) for n in names}
+        if out.autopilot in LOSS_PARAMS:
+            out.loss_timeout_s = self._param(LOSS_PARAMS[out.autopilot])
         self._arm(takeoff_mode, armable_timeout_s)
         if not self.armed:
             out.errors.append("never armed")
@@ -262,8 +291,11 @@ class Script:
         out.climbed_m = round(ground_z - self.z, 2)
         self._stream(0.0, 1.0)  # a fresh stream first: PX4 refuses OFFBOARD without one
         out.offboard_ack = self._set_mode(offboard_mode)
+        acked_at = self.heartbeats
         self._stream(0.0, 1.5)
-        out.mode_in_offboard = self.mode
+        if self.heartbeats == acked_at:  # the mode is what a HEARTBEAT sent after the ACK says
+            self._stream(0.0, MODE_HEARTBEAT_S, lambda: self.heartbeats > acked_at)
+        out.mode_in_offboard = self.mode if self.heartbeats > acked_at else f"no HEARTBEAT (last: {self.mode})"
         on_ground = lambda: self.landed == M.MAV_LANDED_STATE_ON_GROUND  # noqa: E731
         out.landed_at_slow_descent_s = _rounded(self._stream(SLOW_DESCENT_M_S, self.slow_s, on_ground))
         if out.landed_at_slow_descent_s is None:
@@ -315,9 +347,20 @@ def _rounded(value: float | None) -> float | None:
     return None if value is None else round(value, 1)
 
 
-def fly_script(connection: str, slow_s: float = 25.0, fast_s: float = 20.0) -> Outcome:
-    """Run the script once against the vehicle at ``connection``."""
-    return Script(connection, slow_s, fast_s).run()
+def fly_script(connection: str, slow_s: float = 25.0, fast_s: float = 20.0, attempts: int = 2) -> Outcome:
+    """The script against the vehicle at ``connection``, flown again (up to ``attempts``
+    flights) when its own setpoint stream broke (:meth:`Outcome.stream_broke`).
+
+    PX4 SIH at 4x leaves OFFBOARD after COM_OF_LOSS_T = 4 s of its time without a setpoint, 1 s
+    of the wall: on a loaded machine (CI, load 19) real PX4 was once in LOITER where our SITL
+    stayed in OFFBOARD (bench/results/ci-fresh-2026-12-07-35-failed.txt). A flight with such a
+    gap measured the machine; the outcome keeps the gap and the count in ``flights``."""
+    for flight in range(1, attempts + 1):
+        outcome = Script(connection, slow_s, fast_s).run()
+        outcome.flights = flight
+        if not outcome.stream_broke():
+            break
+    return outcome
 
 
 COMPARED = ("takeoff_mode_ack", "takeoff_ack", "offboard_ack", "mode_in_offboard")

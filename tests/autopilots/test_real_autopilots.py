@@ -378,6 +378,10 @@ def test_our_sitl_answers_the_scripted_flight_as_the_real_autopilot_does(scenari
     assert real is not None and ours is not None, _why(s)
     assert not real.errors and not ours.errors, (real, ours)
     assert differences(real, ours) == [], (real.to_dict(), ours.to_dict())
+    for flight in (real, ours):  # each flight judged its own setpoint stream against the vehicle's limit
+        assert flight.loss_timeout_s is not None and flight.max_setpoint_gap_s is not None, flight
+        assert not flight.stream_broke(), flight
+    assert real.loss_timeout_s == pytest.approx(ours.loss_timeout_s), (real.loss_timeout_s, ours.loss_timeout_s)
     if kind == "px4":  # the rule the touchdown assist exists for
         assert real.landed_at_slow_descent_s is None and real.landed_at_fast_descent_s is not None, real
 

@@ -32,6 +32,7 @@ from companion.link.landing_target import (
     landing_target,
 )
 from companion.link.mavlink_link import MavlinkLink
+from companion.link.sim_params import PARAM_BUDGET_S
 from companion.msg.observation import Observation
 from companion.msg.setpoint import VelocitySetpoint
 from companion.msg.snapshot import VehicleSnapshot
@@ -60,6 +61,7 @@ class RecordingLink:
     def __init__(self, echo: dict[str, float] | None = None) -> None:
         self.calls: list[tuple[str, Any]] = []
         self.echo = echo
+        self.param_waits: list[float | None] = []  # each exchange's timeout_s
 
     def state(self) -> None:
         """No telemetry of its own: a lander keeps the step's snapshot."""
@@ -67,6 +69,7 @@ class RecordingLink:
 
     def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
         self.calls.append(("param", (name, value)))
+        self.param_waits.append(timeout_s)
         return value if self.echo is None else self.echo.get(name)
 
     def set_mode(self, name: str) -> None:
@@ -109,6 +112,7 @@ def test_ardupilot_gets_its_plnd_parameters_then_land() -> None:
     link = RecordingLink()
     PrecisionLander(link, None, detector()).engage(ARDUPILOT)  # type: ignore[arg-type]
     assert link.calls == [("param", ("PLND_ENABLED", 1.0)), ("param", ("PLND_TYPE", 1.0)), ("mode", "LAND")]
+    assert link.param_waits == [PARAM_BUDGET_S] * 2  # as long as an episode's simulator parameters
 
 
 @pytest.mark.parametrize("echo", [{}, {"PLND_ENABLED": 0.0}])
@@ -146,6 +150,7 @@ class BootingLink(RecordingLink):
 
     def read_param(self, name: str, timeout_s: float | None = None) -> float | None:
         self.calls.append(("read", name))
+        self.param_waits.append(timeout_s)
         return self.params.get(name)
 
     def set_param(self, name: str, value: float, timeout_s: float | None = None) -> float | None:
@@ -189,6 +194,7 @@ def test_ardupilot_plnd_off_is_set_then_rebooted_while_disarmed_then_streams_ask
     assert booting_lander(link).prepare(ARDUPILOT) is True
     assert link.calls == [("read", "PLND_ENABLED"), ("read", "PLND_TYPE"), ("param", ("PLND_ENABLED", 1.0)),
                           ("param", ("PLND_TYPE", 1.0)), ("reboot", None), ("rates", None)]
+    assert link.param_waits == [PARAM_BUDGET_S] * 4  # an unanswered read would reboot it for nothing
 
 
 def test_ardupilot_plnd_already_on_is_not_rebooted() -> None:

@@ -131,12 +131,19 @@ def test_home_frame_takes_the_ground_it_stood_on_over_a_jumpy_home_position() ->
 class LaggingGuided(DialectLink):
     """ArduCopter that ACKs GUIDED while its EKF settles but stays in STABILIZE a while."""
 
-    def __init__(self, ignored_mode_changes: int, refuse_takeoff_once: bool = False) -> None:
+    def __init__(self, ignored_mode_changes: int, refuse_takeoff_once: bool = False,
+                 disarms_before_takeoff: bool = False) -> None:
         super().__init__(ARDUPILOT, landed="ON_GROUND")
         self.armed = False
         self.mode = "STABILIZE"
         self.ignored = ignored_mode_changes
         self.refuse_takeoff_once = refuse_takeoff_once
+        self.disarms_before_takeoff = disarms_before_takeoff
+        self.really_armed = False  # what the vehicle is; ``armed`` is what its last HEARTBEAT said
+
+    def arm(self) -> None:
+        super().arm()
+        self.really_armed = True
 
     def set_mode(self, name: str) -> None:
         self.calls.append(f"mode {name}")
@@ -146,6 +153,11 @@ class LaggingGuided(DialectLink):
         self.mode = name
 
     def takeoff(self, alt_m: float) -> None:
+        if self.disarms_before_takeoff:  # its disarm after the landing fired; no HEARTBEAT since
+            self.disarms_before_takeoff = self.really_armed = False
+        if not self.really_armed:
+            self.calls.append("takeoff refused")
+            raise CommandRejected("takeoff", "FAILED", ARDUPILOT.takeoff_hint)
         if self.refuse_takeoff_once:
             self.refuse_takeoff_once = False
             self.mode = "STABILIZE"  # as if the mode had reverted
@@ -167,7 +179,24 @@ def test_a_takeoff_refused_outside_guided_enters_guided_again_and_retries() -> N
     clock = [0.0]
     take_off(link, ARDUPILOT, 2.5, arm_timeout_s=60.0, sleep=lambda s: clock.__setitem__(0, clock[0] + s),
              clock=lambda: clock[0])
-    assert link.calls == ["mode GUIDED", "arm", "takeoff refused", "mode GUIDED", "takeoff 2.5"]
+    assert link.calls == ["mode GUIDED", "arm", "takeoff refused", "mode GUIDED", "arm", "takeoff 2.5"]
+
+
+def test_a_takeoff_refused_because_the_vehicle_disarmed_meanwhile_arms_again_and_retries() -> None:
+    link = LaggingGuided(ignored_mode_changes=0, disarms_before_takeoff=True)
+    clock = [0.0]
+    take_off(link, ARDUPILOT, 2.5, arm_timeout_s=60.0, sleep=lambda s: clock.__setitem__(0, clock[0] + s),
+             clock=lambda: clock[0])
+    assert link.state().mode == "GUIDED" and link.state().armed  # its HEARTBEAT never said otherwise
+    assert link.calls == ["mode GUIDED", "arm", "takeoff refused", "arm", "takeoff 2.5"]
+
+
+def test_a_takeoff_refused_again_after_the_retry_raises_with_the_vehicles_reason() -> None:
+    link = LaggingGuided(ignored_mode_changes=0)
+    link.arm = lambda: link.calls.append("arm")  # type: ignore[method-assign]  # ACKed, never armed
+    with pytest.raises(CommandRejected, match="takeoff"):
+        take_off(link, ARDUPILOT, 2.5, arm_timeout_s=60.0, sleep=lambda s: None, clock=lambda: 0.0)
+    assert link.calls == ["mode GUIDED", "arm", "takeoff refused", "arm", "takeoff refused"]
 
 
 def test_a_snapshot_keeps_home_through_other_messages() -> None:

@@ -31,7 +31,7 @@ from companion.experiment.grid import (
     load_experiment,
 )
 from companion.experiment.runner import evaluate_checkpoint, train_run, trial_config
-from companion.inprocess import inprocess_vehicle
+from companion.inprocess import InProcessLink, InProcessSitl, inprocess_vehicle, sitl_config_for
 from companion.simulator import SimulatorClient
 
 REPO = Path(__file__).resolve().parents[2]
@@ -125,6 +125,26 @@ def test_the_inprocess_vehicle_connects_starts_an_episode_and_leaves_opencv_as_i
         frame = vehicle.camera.frame_at(int(snapshot.frame_time_boot_ms or 0), timeout_s=0.0)
         assert frame is not None and frame.image.shape == (240, 320, 3)
     assert cv2.getNumThreads() == threads
+
+
+def test_an_inprocess_vehicle_silent_while_the_companion_thinks_is_not_a_lost_link() -> None:
+    """It speaks only when advanced: minutes of the wall clock without a step are not a link loss
+    (a loaded CI machine had ended an episode as link_lost before its first step)."""
+    now = [0.0]
+    cfg = CompanionConfig()
+    sitl = InProcessSitl(sitl_config_for(cfg, RunOptions(seed=7)))
+    link = InProcessLink(cfg.link, sitl, clock=lambda: now[0])
+    try:
+        link.connect(timeout_s=30.0)
+        assert link.link_alive()
+        now[0] += 10 * cfg.link.link_lost_s  # nothing sent, nothing heard
+        assert link.link_alive()
+        assert link.send_statustext("COL: still here") is not False  # raised LinkLost before
+        assert link.stats().reconnections == 0
+    finally:
+        link.close()
+        sitl.close()
+    assert not link.link_alive()  # closed: lost
 
 
 def test_an_inprocess_run_refuses_another_vehicle_or_camera(tmp_path: Path) -> None:

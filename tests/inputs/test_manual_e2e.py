@@ -37,6 +37,7 @@ BODY_VELOCITY_MASK = 0x5C7
 HOLD_AFTER_OFFBOARD_S = 0.8  # the policy flies first ...
 HOLD_FOR_S = 2.2  # ... then the person for this long, then the policy again
 MAX_STEPS = 45  # about 4.3 s at 10.5 Hz
+MANUAL_TIMEOUT_S = 2.0  # well under HOLD_FOR_S's end to the episode's: the release still shows
 
 
 class GroundStation(threading.Thread):
@@ -99,6 +100,11 @@ def write_config(path: Path, start_ned: list[float], camera_uri: str) -> Path:
         "start_tolerance_m = 1.0\n"
         "[companion.perception]\n"
         f'camera = "{camera_uri}"\n'
+        # The override's release after a silent ground station is tested on an injected clock
+        # (tests/inputs/test_inputs.py); here a 0.5 s stall of the loaded machine (CI, load 19)
+        # had released and re-held the button: two interventions where the person made one.
+        "[companion.pilot]\n"
+        f"manual_timeout_s = {MANUAL_TIMEOUT_S}\n"
     )
     return path
 
