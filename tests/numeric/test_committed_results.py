@@ -46,7 +46,7 @@ def _recorded_environ() -> dict[str, str] | None:
 @pytest.mark.skipif(not (_recorded_environ() and ne.can_run_environ(_recorded_environ() or {}, os.uname().machine,
                                                                     ne.cpu_flags())),
                     reason="this CPU cannot run the kernels the committed grid was made with")
-@pytest.mark.xdist_group("cpu-heavy")  # lockstep, with the Ray grids: beside the real-time tests, one at a time
+@pytest.mark.xdist_group("cpu-heavy")  # lockstep: one CPU-heavy unit at a time beside the real-time tests
 @pytest.mark.timeout(1500)  # ~146 s on an idle machine, over 300 s at load ~11
 def test_a_committed_trial_reruns_byte_for_byte() -> None:
     """``--verify`` reruns the trial in the environment the folder recorded, whatever the shell

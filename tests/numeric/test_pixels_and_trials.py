@@ -17,7 +17,7 @@ from colcommon import numeric_env as ne
 ROOT = Path(__file__).resolve().parents[2]
 CAN_PIN = ne.why_not_pinned({}, os.uname().machine, ne.cpu_flags()) is None
 pytestmark = [pytest.mark.skipif(not CAN_PIN, reason="this CPU cannot run the x86-64-v3 profile"),
-              pytest.mark.xdist_group("cpu-heavy"),  # lockstep, with the Ray grids: one at a time
+              pytest.mark.xdist_group("cpu-heavy"),  # lockstep: one CPU-heavy unit at a time
               pytest.mark.timeout(1500)]  # an upper bound: a trial rerun at load ~10
 
 
