@@ -149,6 +149,15 @@ def _realtime_test(request: pytest.FixtureRequest) -> Iterator[None]:
         yield
 
 
+ONE_AFTER_ANOTHER = "one-after-another"
+"""The xdist group of the heaviest wall-clock tests, run in turn on one worker: the real autopilots
+(PX4 SIH at 4x, ArduCopter at 5x), then the browser tests (chromium and the console), then the
+Ray backend's (a local instance has a fixed 30 s for its raylet). Side by side at the start of the
+suite, at the real-time priority, they drove the load to 18-19 on 2 cores: the companion fell
+behind PX4 SIH at 4x, and Ray missed its start (bench/results/ci-fresh-2026-12-07-36-failed.txt,
+-37-failed.txt). In turn they take about as long as the rest of the suite."""
+
+
 def grouped_first(items: list[pytest.Item]) -> list[pytest.Item]:
     """The tests of an xdist group (the long real-time and CPU-bound units) before the others,
     each set in collection order. ``--dist loadgroup`` hands work out in collection order; a long

@@ -20,8 +20,9 @@ import pytest
 from companion.control.touchdown import TRUTH_CONTACT_NOTE
 from companion.testing.autopilots import start_ardupilot
 from tests.autopilots import SPEEDUP, autopilots_root
+from tests.conftest import ONE_AFTER_ANOTHER
 
-pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
+pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group(ONE_AFTER_ANOTHER)]
 COL = str(Path(sys.executable).with_name("col"))
 CONFIG = """
 [companion.pilot]

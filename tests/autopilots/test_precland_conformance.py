@@ -29,8 +29,9 @@ from companion.testing.autopilots import (
 )
 from companion.testing.conformance import PrecLandOutcome, fly_precland
 from tests.autopilots import SPEEDUP, autopilots_root
+from tests.conftest import ONE_AFTER_ANOTHER
 
-pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group("real-autopilots")]
+pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(600), pytest.mark.xdist_group(ONE_AFTER_ANOTHER)]
 KINDS = ("px4", "ardupilot")
 NEAR_M = 1.0  # "lands near the point": within this, horizontally, in the vehicle's own frame
 # Real PX4 SIH's estimated position wanders 0.3-0.5 m while it approaches and descends, and its

@@ -51,10 +51,11 @@ from tests.autopilots import (  # times real time, each autopilot and our SITL a
     SPEEDUP,
     autopilots_root,
 )
+from tests.conftest import ONE_AFTER_ANOTHER
 
 # one xdist worker runs this group in turn: real PX4 SIH lost the companion ("Connection to
 # mission computer lost") beside the CPU-bound trial reruns
-pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(900), pytest.mark.xdist_group("real-autopilots")]
+pytestmark = [pytest.mark.realtime, pytest.mark.autopilot, pytest.mark.timeout(900), pytest.mark.xdist_group(ONE_AFTER_ANOTHER)]
 COL = str(Path(sys.executable).with_name("col"))
 KINDS = ("px4", "ardupilot")
 SHORT = """

@@ -18,6 +18,7 @@ from typing import Any
 import pytest
 
 from companion.simulator import SimulatorClient
+from tests.conftest import ONE_AFTER_ANOTHER
 from tests.console import start_console, stop
 
 CHROMIUM = os.environ.get("COL_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
@@ -38,7 +39,7 @@ navigator.getGamepads = () => [{
 }];
 """
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group(ONE_AFTER_ANOTHER), pytest.mark.timeout(900)]
 SHOTS = os.environ.get("COL_CONSOLE_SHOTS")  # a folder: keep the screenshots (docs/images)
 
 

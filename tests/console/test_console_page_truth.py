@@ -13,10 +13,11 @@ from pathlib import Path
 import pytest
 
 from companion.control.gaps import STALE_TELEMETRY, VIDEO_MISSING
+from tests.conftest import ONE_AFTER_ANOTHER
 from tests.console.test_console_browser import FAKE_PAD, PATIENCE, _wait, chromium, shot
 from tests.console.test_console_pages import Served
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group(ONE_AFTER_ANOTHER), pytest.mark.timeout(240)]
 C = "window.colConsole"
 
 

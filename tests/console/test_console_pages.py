@@ -15,9 +15,10 @@ from aiohttp import web
 from colcommon.frames import Frame
 from companion.console.frames import encode_for_page
 from companion.console.server import ConsoleServer
+from tests.conftest import ONE_AFTER_ANOTHER
 from tests.console.test_console_browser import _wait, chromium, shot
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group(ONE_AFTER_ANOTHER), pytest.mark.timeout(180)]
 
 
 class Served:

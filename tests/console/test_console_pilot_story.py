@@ -15,10 +15,11 @@ from pathlib import Path
 import pytest
 
 from companion.learning.dataset import HumanDataset
+from tests.conftest import ONE_AFTER_ANOTHER
 from tests.console import start_console, stop
 from tests.console.test_console_browser import FAKE_PAD, _browser_or_skip, _wait, chromium, shot
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(1500)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group(ONE_AFTER_ANOTHER), pytest.mark.timeout(1500)]
 PITCH = 0.3  # the good stick before the pad breaks: every recorded row must carry exactly it
 
 

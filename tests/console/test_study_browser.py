@@ -12,6 +12,7 @@ import pytest
 
 from companion.experiment.report import write_report
 from companion.experiment.results import ResultsFile
+from tests.conftest import ONE_AFTER_ANOTHER
 from tests.console import REPO, start_col, stop
 from tests.console.test_console_browser import (
     CHROMIUM,
@@ -22,7 +23,7 @@ from tests.console.test_console_browser import (
     shot,
 )
 
-pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group("browser"), pytest.mark.timeout(1500)]
+pytestmark = [pytest.mark.realtime, pytest.mark.e2e, pytest.mark.xdist_group(ONE_AFTER_ANOTHER), pytest.mark.timeout(1500)]
 
 
 def _block(page, condition: str, episodes: int) -> None:  # type: ignore[no-untyped-def]

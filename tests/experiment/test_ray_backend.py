@@ -36,15 +36,16 @@ from companion.experiment.grid import (
 from companion.experiment.ray_backend import ray_instance
 from companion.experiment.results import TrialResult
 from companion.experiment.runner import run_grid
+from tests.conftest import ONE_AFTER_ANOTHER
 
 # one worker runs these in turn: each checks that no Ray process or session folder is left,
 # which another worker's Ray instance (started at the same time) would break. The same worker runs
-# the real-autopilot tests (group real-autopilots), before these: a local Ray instance has a fixed
+# the real-autopilot and browser tests before these (tests/conftest.py, ONE_AFTER_ANOTHER): a local Ray instance has a fixed
 # 30 s of the wall clock for its raylet to register, and beside PX4 SIH and ArduCopter at 4-5x (at
 # the real-time tests' higher priority) it missed that twice in a CI run at load 18
 # (bench/results/ci-fresh-2026-12-07-36-failed.txt); nor does a Ray grid's CPU-heavy burst then
 # starve real PX4's offboard stream (two bursts at once, a load of 13, once did).
-pytestmark = [pytest.mark.xdist_group("real-autopilots"), pytest.mark.timeout(900)]  # upper bound at load ~10
+pytestmark = [pytest.mark.xdist_group(ONE_AFTER_ANOTHER), pytest.mark.timeout(900)]  # upper bound at load ~10
 REPO = Path(__file__).resolve().parents[2]
 DRIVER_PID = os.getpid()
 """This process: the driver of the Ray instances the tests start (captured by value by Ray)."""
