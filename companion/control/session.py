@@ -36,6 +36,7 @@ from companion.control.gaps import (
 )
 from companion.control.help_session import HelpSession
 from companion.control.link_port import HOLD, LinkPort
+from companion.control.pace import pace_note
 from companion.control.parts import EpisodeParts
 from companion.control.policy_frame import policy_position
 from companion.control.precland import fly_precland
@@ -148,6 +149,10 @@ class EpisodeRunner:
         if self.help is not None:
             notes.extend(self.help.end(steps))
         notes.extend(self.gaps.notes())
+        slow = pace_note(steps, ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0, self.p.cfg.control_rate_hz)
+        if slow is not None and not self.gaps.counter.counts["link"]:  # a lost link's silence is said above
+            log.warning("episode %d: %s", episode, slow)
+            notes.append(slow)
         if self.p.cfg.policy_pad_ned_m is not None:
             notes.append(f"position seen in the policy's frame: the pad at {list(self.p.cfg.policy_pad_ned_m)} from "
                          f"home there, {list(self.p.cfg.pad_ned_m)} here")

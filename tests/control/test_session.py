@@ -695,3 +695,21 @@ def test_the_truths_first_ground_contact_ends_the_episode_and_the_vehicle_is_dis
     assert runner.truth_ground is not None and runner.truth_ground.ground_down_m == pytest.approx(TruthLink.GROUND_DOWN_M)
     second = runner.run(1, Phase.DEMONSTRATION, seed=8)  # from the ground again: taken off, flown, ended alike
     assert second.outcome == "touchdown" and len(link.forced) == 2, second.notes
+
+
+class RunningAheadLink(KinematicLink):
+    """A vehicle whose clock runs twice as far as the companion steps (a SITL faster than the
+    machine flies it): two frame periods of its time pass between the companion's steps."""
+
+    def wait_frame(self, after_time_boot_ms: int, timeout_s: float) -> VehicleSnapshot | None:
+        self.t_ms += FRAME_MS
+        return super().wait_frame(after_time_boot_ms, timeout_s)
+
+
+def test_an_episode_that_fell_behind_the_vehicles_clock_says_so_and_a_kept_one_does_not() -> None:
+    behind, _ = make_runner(RunningAheadLink(), ScriptedHuman(set()), runner=policy_runner(), max_steps=40)
+    record = behind.run(0, Phase.AUTONOMOUS, seed=1)
+    assert record.outcome == "timeout"
+    assert any(n.startswith("control kept 5.") and "fell behind the vehicle" in n for n in record.notes), record.notes
+    kept, _ = make_runner(KinematicLink(), ScriptedHuman(set()), runner=policy_runner(), max_steps=40)
+    assert not any("fell behind" in n for n in kept.run(0, Phase.AUTONOMOUS, seed=1).notes)
