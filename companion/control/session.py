@@ -149,7 +149,7 @@ class EpisodeRunner:
         if self.help is not None:
             notes.extend(self.help.end(steps))
         notes.extend(self.gaps.notes())
-        slow = pace_note(steps, ((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0, self.p.cfg.control_rate_hz)
+        slow = pace_note(steps, _vehicle_s(snap, t0_ms), self.p.cfg.control_rate_hz)
         if slow is not None and not self.gaps.counter.counts["link"]:  # a lost link's silence is said above
             log.warning("episode %d: %s", episode, slow)
             notes.append(slow)
@@ -320,9 +320,14 @@ class EpisodeRunner:
             episode, phase, seed, steps, outcome, result, involvement=self.step.arbiter.summary(),
             control_period_s=self.period_s, policy_version=version,
             dataset_size=len(self.p.dataset) if self.p.dataset is not None else 0,
-            sim_time_s=((snap.time_boot_ms if snap else t0_ms) - t0_ms) / 1000.0,
+            sim_time_s=_vehicle_s(snap, t0_ms),
             wall_time_s=time.monotonic() - wall0, notes=notes,
             ask=self.help.summary if self.help is not None else None,
             supervised_steps=supervised_steps(
                 phase, steps, self.help.supervised_steps(phase, steps) if self.help is not None else None),
             ask_threshold=self.p.asker.threshold if self.p.asker is not None else None)
+
+
+def _vehicle_s(last: VehicleSnapshot | None, t0_ms: int) -> float:
+    """Seconds of the vehicle's time from the episode's first snapshot to its ``last`` (0 without one)."""
+    return ((last.time_boot_ms if last else t0_ms) - t0_ms) / 1000.0

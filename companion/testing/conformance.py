@@ -24,7 +24,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 from pymavlink import mavutil
 
@@ -355,10 +355,24 @@ def fly_script(connection: str, slow_s: float = 25.0, fast_s: float = 20.0, atte
     of the wall: on a loaded machine (CI, load 19) real PX4 was once in LOITER where our SITL
     stayed in OFFBOARD (bench/results/ci-fresh-2026-12-07-35-failed.txt). A flight with such a
     gap measured the machine; the outcome keeps the gap and the count in ``flights``."""
+    return flown_until_whole(lambda: Script(connection, slow_s, fast_s).run(), Outcome.stream_broke, attempts)
+
+
+class _Flight(Protocol):
+    flights: int
+
+
+FlightT = TypeVar("FlightT", bound=_Flight)
+
+
+def flown_until_whole(fly: Callable[[], FlightT], broke: Callable[[FlightT], bool], attempts: int) -> FlightT:
+    """``fly()``, again (up to ``attempts`` flights) while ``broke`` says the script's own stream
+    to the vehicle broke: such a flight measured the machine's load, not the autopilot. The
+    outcome returned keeps its count in ``flights``."""
     for flight in range(1, attempts + 1):
-        outcome = Script(connection, slow_s, fast_s).run()
+        outcome = fly()
         outcome.flights = flight
-        if not outcome.stream_broke():
+        if not broke(outcome):
             break
     return outcome
 
@@ -652,10 +666,6 @@ def fly_precland(connection: str, land_s: float = 60.0, texts_from: str | None =
     that is 0.1 s of the wall: a script stalled that long by a loaded machine broke the stream,
     and ArduCopter landed where it stood (bench/results/ci-fresh-2026-12-07-32-failed.txt). That
     flight measured the machine, not the autopilot; the outcome keeps the count in ``flights``."""
-    for flight in range(1, attempts + 1):
-        outcome = PrecLandScript(connection, land_s, texts_from).run_precland()
-        outcome.flights = flight
-        if STREAM_BROKEN not in outcome.texts:
-            break
-    return outcome
+    return flown_until_whole(lambda: PrecLandScript(connection, land_s, texts_from).run_precland(),
+                             lambda outcome: STREAM_BROKEN in outcome.texts, attempts)
 
