@@ -4,9 +4,9 @@ The companion steps at ``control_rate_hz`` of the vehicle's time (its ``time_boo
 fast the vehicle runs. On a busy machine, or with a SITL run faster than this machine can fly it
 (PX4 SIH at 4x, ArduCopter at 5x), a step can take longer than its period: the vehicle flies on
 the last setpoint meanwhile, and the person's or policy's corrections come late. The episode is
-then not the one the policy was trained for, and its record should say so: in CI at a load of
-12, two of the expert's episodes on PX4 SIH at 4x ran about 6 steps a second of the vehicle's
-time where 10 were asked, and both timed out (bench/results/ci-fresh-2026-12-07-37-failed.txt).
+then not the one the policy was trained for, and its record should say so: in one CI run two of
+the expert's episodes on PX4 SIH at 4x timed out with nothing in the record to tell the machine's
+part (bench/results/ci-fresh-2026-12-07-37-failed.txt; the run's records were not kept).
 """
 
 from __future__ import annotations
